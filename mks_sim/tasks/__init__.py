@@ -1,0 +1,1 @@
+"""mks_sim.tasks."""
