@@ -1,0 +1,158 @@
+"""Rigid transforms: fits, conventions, pose errors, the cube group, PoseHypothesis."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from mks_sim.errors import DataError
+from mks_sim.geometry.transforms import (
+    apply,
+    cube_rotations,
+    from_row_convention,
+    invert,
+    make_transform,
+    pose_error,
+    random_rotation,
+    rigid_fit,
+    rotation_angle_deg,
+    to_row_convention,
+)
+from mks_sim.models.pose import PoseHypothesis
+
+seeds = st.integers(min_value=0, max_value=2**32 - 1)
+
+
+def _random_rigid(rng: np.random.Generator) -> np.ndarray:
+    return make_transform(random_rotation(rng), rng.uniform(-10, 10, 3))
+
+
+@given(seeds, st.integers(min_value=3, max_value=40))
+def test_rigid_fit_recovers_random_transform(seed: int, n: int) -> None:
+    rng = np.random.default_rng(seed)
+    src = rng.uniform(-5, 5, (n, 3))
+    T = _random_rigid(rng)
+    dst = apply(T, src)
+    T_fit, rmse = rigid_fit(src, dst)
+    assert rmse < 1e-8
+    np.testing.assert_allclose(T_fit, T, atol=1e-8)
+    assert np.linalg.det(T_fit[:3, :3]) == pytest.approx(1.0)
+
+
+@given(seeds)
+def test_rigid_fit_reflection_guard(seed: int) -> None:
+    # A mirrored point set: the best proper rotation, never a reflection.
+    rng = np.random.default_rng(seed)
+    src = rng.uniform(-1, 1, (10, 3))
+    dst = src * np.array([1.0, 1.0, -1.0])
+    T, rmse = rigid_fit(src, dst)
+    assert np.linalg.det(T[:3, :3]) == pytest.approx(1.0)
+    assert rmse > 0
+
+
+def test_rigid_fit_weights_ignore_outlier() -> None:
+    rng = np.random.default_rng(1)
+    src = rng.uniform(-1, 1, (8, 3))
+    T = _random_rigid(rng)
+    dst = apply(T, src)
+    dst[0] += 100.0
+    w = np.ones(8)
+    w[0] = 0.0
+    T_fit, rmse = rigid_fit(src, dst, w)
+    np.testing.assert_allclose(T_fit, T, atol=1e-8)
+    assert rmse < 1e-8
+
+
+def test_rigid_fit_bad_input() -> None:
+    with pytest.raises(DataError, match="pair up"):
+        rigid_fit(np.zeros((3, 3)), np.zeros((4, 3)))
+    with pytest.raises(DataError, match="NaN"):
+        rigid_fit(np.full((3, 3), np.nan), np.zeros((3, 3)))
+    with pytest.raises(DataError, match=r"\(N, 3\)"):
+        rigid_fit(np.zeros((3, 2)), np.zeros((3, 2)))
+    with pytest.raises(DataError, match="weights"):
+        rigid_fit(np.zeros((3, 3)), np.zeros((3, 3)), weights=[-1, 1, 1])
+
+
+@given(seeds)
+def test_row_column_round_trip(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    T = _random_rigid(rng)
+    M = to_row_convention(T)
+    np.testing.assert_array_equal(from_row_convention(M), T)
+    p = rng.uniform(-3, 3, 3)
+    # The paper's convention: p' = [p 1] @ M.
+    np.testing.assert_allclose(np.append(p, 1.0) @ M, np.append(apply(T, p), 1.0), atol=1e-12)
+    np.testing.assert_allclose(M[3, :3], T[:3, 3])
+
+
+@given(seeds)
+def test_invert(seed: int) -> None:
+    T = _random_rigid(np.random.default_rng(seed))
+    np.testing.assert_allclose(invert(T) @ T, np.eye(4), atol=1e-12)
+
+
+def test_cube_rotations_is_group_of_24() -> None:
+    G = cube_rotations()
+    assert G.shape == (24, 3, 3)
+    np.testing.assert_array_equal(G[0], np.eye(3))
+    keys = {tuple(R.astype(int).ravel()) for R in G}
+    assert len(keys) == 24
+    for R in G:
+        assert np.linalg.det(R) == pytest.approx(1.0)
+        np.testing.assert_allclose(R @ R.T, np.eye(3))
+    for A in G:  # closure
+        for B in G:
+            assert tuple((A @ B).astype(int).ravel()) in keys
+    # Each maps the cube's vertex set onto itself.
+    cube = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    ref = {tuple(v) for v in cube}
+    for R in G:
+        assert {tuple(v) for v in cube @ R.T} == ref
+
+
+def test_random_rotation_uniform() -> None:
+    rng = np.random.default_rng(7)
+    Rs = np.array([random_rotation(rng) for _ in range(4000)])
+    np.testing.assert_allclose(
+        np.einsum("nij,nkj->nik", Rs, Rs), np.broadcast_to(np.eye(3), Rs.shape), atol=1e-12
+    )
+    assert np.allclose(np.linalg.det(Rs), 1.0)
+    # Haar measure: E[R] = 0 and the rotation angle has density (1 - cos a)/pi, mean pi/2 + 2/pi.
+    assert np.abs(Rs.mean(axis=0)).max() < 0.05
+    angles = np.arccos(np.clip((np.trace(Rs, axis1=1, axis2=2) - 1) / 2, -1, 1))
+    assert angles.mean() == pytest.approx(np.pi / 2 + 2 / np.pi, abs=0.03)
+
+
+def test_rotation_angle_and_pose_error() -> None:
+    c, s = math.cos(math.radians(30)), math.sin(math.radians(30))
+    Rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    assert rotation_angle_deg(np.eye(3), Rz) == pytest.approx(30.0)
+    T_true = make_transform(np.eye(3), [1, 2, 3])
+    T_est = make_transform(Rz, [1, 2, 3.5])
+    pos, rot = pose_error(T_est, T_true)
+    assert pos == pytest.approx(0.5) and rot == pytest.approx(30.0)
+    # A cube rotated by 90 degrees is the same cube: zero error modulo its symmetries.
+    R90 = np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1]], float)
+    T_sym = make_transform(R90, [1, 2, 3])
+    assert pose_error(T_sym, T_true)[1] == pytest.approx(90.0)
+    assert pose_error(T_sym, T_true, cube_rotations())[1] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_pose_hypothesis() -> None:
+    T = make_transform(np.eye(3), [5, 0, 0])
+    h = PoseHypothesis(T, [6.5, 1.3, 1.25], votes=8, correspondences=[[0, 1], [2, 3]], rmse=0.0)
+    assert math.isnan(h.score)
+    np.testing.assert_array_equal(h.matrix_row_convention[3], [5, 0, 0, 1])
+    with pytest.raises(ValueError):
+        h.matrix[0, 0] = 2.0
+    assert h.with_score(0.9).score == pytest.approx(0.9)
+    assert h.correspondences.dtype == np.int64
+    with pytest.raises(DataError, match=r"\(n, 2\)"):
+        PoseHypothesis(T, [0, 0, 0], correspondences=[1, 2, 3])
+    with pytest.raises(DataError, match=r"\(4, 4\)"):
+        PoseHypothesis(np.eye(3), [0, 0, 0])
