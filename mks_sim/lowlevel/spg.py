@@ -1,0 +1,409 @@
+"""The spatial proximity graph (SPG) of MKS (paper sections 1.2 and 3).
+
+"The spatial proximity graph simply takes a set of points and creates a graph whose nodes are
+the points, and whose edges connect each node to the m nearest neighbors of that node" —
+built by "querying the k-d tree with each data point in turn"; "the graph is not necessarily
+symmetric". Points may live in any k-dimensional feature space and any :class:`Metric`.
+
+Definition used here (every test checks it by brute force):
+
+* row ``i`` links point ``i`` to its ``m`` nearest *other* points (a duplicate of ``i`` is
+  another point, at distance 0), keeping only those at distance ``<= threshold`` (inclusive,
+  like ``query_ball_point``) when a threshold is given;
+* ``m="all"`` is the paper's "infinite number of neighbors": every other point within the
+  threshold (a threshold is then required);
+* ties are broken by index: among points at the same distance the lower index wins, and
+  :meth:`SpatialProximityGraph.neighbors` lists nearest first, ties by index.
+
+Zero distances: ``adjacency`` is a canonical ``scipy.sparse.csr_array`` whose ``data`` are the
+distances, and an edge of distance 0 (duplicated points, which the paper's tables contain) is an
+**explicitly stored zero**. It counts in ``nnz`` and in ``indices``/``indptr``; it vanishes if
+you call ``eliminate_zeros()`` or ``toarray()``. Use :attr:`SpatialProximityGraph.pattern` (the
+same structure with boolean ``True`` data) whenever you need the edges rather than the lengths;
+:meth:`components` does.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import sparse
+from scipy.sparse.csgraph import connected_components
+
+from mks_sim.errors import DataError, SpecError
+from mks_sim.lowlevel.dynamic import DynamicKDTree
+from mks_sim.lowlevel.kdtree import KDTree
+from mks_sim.lowlevel.metric import Metric, validate_points
+
+__all__ = ["SpatialProximityGraph"]
+
+Neighbours = int | Literal["all"]
+
+
+def _check_params(m: Neighbours, threshold: float | None) -> tuple[Neighbours, float | None]:
+    if m != "all" and (isinstance(m, bool) or not isinstance(m, int | np.integer) or m < 1):
+        raise SpecError(f"SpatialProximityGraph: expected m = an integer >= 1 or 'all', got {m!r}")
+    if threshold is not None:
+        t = float(threshold)
+        if not (t >= 0) or math.isnan(t):
+            raise SpecError(
+                f"SpatialProximityGraph: expected threshold >= 0 or None, got {threshold!r}"
+            )
+        threshold = t
+    if m == "all" and (threshold is None or math.isinf(threshold)):
+        raise SpecError(
+            "SpatialProximityGraph: m='all' (the paper's infinite number of neighbours) needs a "
+            f"finite threshold, got threshold={threshold!r}"
+        )
+    return (m if m == "all" else int(m)), threshold
+
+
+class SpatialProximityGraph:
+    """Directed m-nearest-neighbour graph of points under a metric, with updates.
+
+    Args:
+        points: (N, k) float points (finite).
+        m: neighbours per point (int >= 1) or ``"all"`` (needs ``threshold``).
+        threshold: keep only neighbours at distance <= threshold; None: no limit.
+        metric: the distance (default Euclidean); ``Metric.sum_of`` works too.
+        leafsize: bucket size of the k-d tree.
+        workers: threads for the tree queries (-1: all cores).
+
+    Attributes:
+        m, threshold, metric: the parameters.
+    """
+
+    def __init__(
+        self,
+        points: ArrayLike,
+        m: Neighbours = 8,
+        threshold: float | None = None,
+        metric: Metric | None = None,
+        leafsize: int = 16,
+        workers: int = -1,
+    ) -> None:
+        pts = np.asarray(points, dtype=float)
+        if pts.ndim != 2:
+            raise DataError(f"SpatialProximityGraph points: expected (N, k), got shape {pts.shape}")
+        if pts.size:
+            pts = validate_points(pts, "SpatialProximityGraph points")
+        tree = KDTree(pts, leafsize=leafsize, metric=metric)
+        self._init(tree, m, threshold, workers)
+
+    @classmethod
+    def from_tree(
+        cls,
+        tree: KDTree | DynamicKDTree,
+        m: Neighbours = 8,
+        threshold: float | None = None,
+        workers: int = -1,
+    ) -> SpatialProximityGraph:
+        """Build the SPG over the points of an existing tree (its metric is used)."""
+        if not isinstance(tree, KDTree | DynamicKDTree):
+            raise DataError(
+                f"SpatialProximityGraph.from_tree: expected a KDTree or DynamicKDTree, got {type(tree).__name__}"
+            )
+        self = cls.__new__(cls)
+        self._init(tree, m, threshold, workers)
+        return self
+
+    def _init(
+        self,
+        tree: KDTree | DynamicKDTree,
+        m: Neighbours,
+        threshold: float | None,
+        workers: int,
+    ) -> None:
+        self.m, self.threshold = _check_params(m, threshold)
+        self.metric = tree.metric
+        self.workers = workers
+        self._tree = tree
+        if isinstance(tree, DynamicKDTree):
+            self._ids = tree.ids
+        else:
+            self._ids = np.arange(tree.n, dtype=np.intp)
+        lens, nbr, dist = self._compute_rows(self._ids)
+        self._indptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.intp)
+        self._nbr = nbr
+        self._dist = dist
+
+    # ------------------------------------------------------------------ the tree side
+    def _points_of(self, ids: NDArray[np.intp]) -> NDArray[np.float64]:
+        if isinstance(self._tree, DynamicKDTree):
+            return self._tree.points_of(ids)
+        return self._tree.data[ids]
+
+    def _compute_rows(
+        self, ids: NDArray[np.intp]
+    ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]]:
+        """Rows of the given ids: (lengths (Q,), neighbour ids, distances), nearest first."""
+        ids = np.asarray(ids, np.intp)
+        nq = len(ids)
+        if nq == 0:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros(0)
+        q = self._points_of(ids)
+        tree = self._tree
+        rows: dict[int, tuple[NDArray[np.intp], NDArray[np.float64]]] = {}
+        if self.m == "all":
+            assert self.threshold is not None
+            ball_rows = np.arange(nq)
+            radii = np.full(nq, self.threshold * (1 + 1e-12) + 1e-300)
+            lens = np.zeros(nq, np.intp)
+            taken_nbr = np.zeros((nq, 0), np.intp)
+            taken_ok = np.zeros((nq, 0), bool)
+        else:
+            m = int(self.m)
+            # Slightly generous bound; the exact metric filters below.
+            dub = math.inf if self.threshold is None else self.threshold * (1 + 1e-12) + 1e-300
+            d, i = tree.query(q, k=m + 2, distance_upper_bound=dub, workers=self.workers)
+            d = np.asarray(d).reshape(nq, m + 2)
+            i = np.asarray(i).reshape(nq, m + 2)
+            valid = np.isfinite(d) & (i != ids[:, None])
+            rank = np.cumsum(valid, axis=1) - 1
+            take = valid & (rank < m)
+            d_last = np.where(valid & (rank == m - 1), d, -np.inf).max(axis=1)
+            d_next = np.where(valid & (rank == m), d, np.inf).min(axis=1)
+            # A tie across the m-th place: the tree chose among equals; redo by index.
+            ball_rows = np.flatnonzero(d_next == d_last)
+            radii = d_last[ball_rows] * (1 + 1e-12) + 1e-300
+            taken_nbr = np.where(take, i, 0)
+            taken_ok = take
+            lens = take.sum(axis=1)
+        for j, r in zip(ball_rows.tolist(), radii.tolist(), strict=True):
+            idx = np.asarray(tree.query_ball_point(q[j], r, workers=1), dtype=np.intp)
+            idx = idx[idx != ids[j]]
+            dd = self.metric.distance(q[j], self._points_of(idx)) if idx.size else np.zeros(0)
+            if self.threshold is not None:
+                keep = dd <= self.threshold
+                idx, dd = idx[keep], dd[keep]
+            order = np.lexsort((idx, dd))
+            if self.m != "all":
+                order = order[: int(self.m)]
+            rows[j] = (idx[order], dd[order])
+        # Flatten the k-nearest part, recompute exact distances with the metric (one formula for
+        # every stored edge), re-sort by (distance, id), then splice in the ball rows.
+        row_of = np.repeat(np.arange(nq), lens)
+        nbr = taken_nbr[taken_ok]
+        dist = self.metric.distance(q[row_of], self._points_of(nbr)) if nbr.size else np.zeros(0)
+        keep = np.ones(len(nbr), bool)
+        if self.threshold is not None:
+            keep &= dist <= self.threshold
+        if rows:
+            keep &= ~np.isin(row_of, np.fromiter(rows, np.intp, len(rows)))
+        row_of, nbr, dist = row_of[keep], nbr[keep], dist[keep]
+        if rows:
+            extra_rows = np.fromiter(rows, np.intp, len(rows))
+            row_of = np.concatenate(
+                [row_of, np.repeat(extra_rows, [len(rows[r][0]) for r in rows])]
+            )
+            nbr = np.concatenate([nbr, *[rows[r][0] for r in rows]])
+            dist = np.concatenate([dist, *[rows[r][1] for r in rows]])
+        order = np.lexsort((nbr, dist, row_of))
+        row_of, nbr, dist = row_of[order], nbr[order], dist[order]
+        lens = np.bincount(row_of, minlength=nq).astype(np.intp)
+        return lens, nbr.astype(np.intp), dist.astype(float)
+
+    # ------------------------------------------------------------------ views
+    @property
+    def n(self) -> int:
+        """Number of points N."""
+        return len(self._ids)
+
+    def __len__(self) -> int:
+        return self.n
+
+    @property
+    def points(self) -> NDArray[np.float64]:
+        """(N, k) the points, row i = node i."""
+        return self._points_of(self._ids)
+
+    @property
+    def tree(self) -> KDTree | DynamicKDTree:
+        """The k-d tree the graph is built on (a DynamicKDTree after the first update)."""
+        return self._tree
+
+    def _cols(self) -> NDArray[np.intp]:
+        return np.searchsorted(self._ids, self._nbr).astype(np.intp)
+
+    @property
+    def adjacency(self) -> sparse.csr_array:
+        """(N, N) directed adjacency, canonical CSR; data = distances (explicit zeros kept)."""
+        n = self.n
+        cols = self._cols()
+        rows = np.repeat(np.arange(n), np.diff(self._indptr))
+        order = np.lexsort((cols, rows))
+        return sparse.csr_array((self._dist[order], cols[order], self._indptr.copy()), shape=(n, n))
+
+    @property
+    def pattern(self) -> sparse.csr_array:
+        """(N, N) boolean directed adjacency (True for every edge, including distance 0)."""
+        adj = self.adjacency
+        return sparse.csr_array((np.ones(adj.nnz, bool), adj.indices, adj.indptr), shape=adj.shape)
+
+    def symmetric(self) -> sparse.csr_array:
+        """(N, N) undirected view: i~j if i->j or j->i; data = the smaller distance."""
+        n = self.n
+        cols = self._cols()
+        rows = np.repeat(np.arange(n), np.diff(self._indptr))
+        r = np.concatenate([rows, cols])
+        c = np.concatenate([cols, rows])
+        d = np.concatenate([self._dist, self._dist])
+        order = np.lexsort((d, c, r))
+        r, c, d = r[order], c[order], d[order]
+        first = np.ones(len(r), bool)
+        first[1:] = (r[1:] != r[:-1]) | (c[1:] != c[:-1])
+        r, c, d = r[first], c[first], d[first]
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))])
+        return sparse.csr_array((d, c, indptr), shape=(n, n))
+
+    def neighbors(self, i: int) -> NDArray[np.intp]:
+        """(n_i,) neighbour rows of node i, nearest first, ties by index."""
+        s = self._row_slice(i)
+        return np.searchsorted(self._ids, self._nbr[s]).astype(np.intp)
+
+    def distances(self, i: int) -> NDArray[np.float64]:
+        """(n_i,) distances aligned with :meth:`neighbors`."""
+        return self._dist[self._row_slice(i)].copy()
+
+    def _row_slice(self, i: int) -> slice:
+        if not isinstance(i, int | np.integer) or not (-self.n <= i < self.n):
+            raise DataError(
+                f"SpatialProximityGraph: expected a node index in [0, {self.n}), got {i!r}"
+            )
+        i = int(i) % self.n
+        return slice(int(self._indptr[i]), int(self._indptr[i + 1]))
+
+    def components(self) -> tuple[int, NDArray[np.int32]]:
+        """Connected components of the symmetric view: (count, labels (N,))."""
+        sym = self.symmetric()
+        pat = sparse.csr_array((np.ones(sym.nnz, bool), sym.indices, sym.indptr), shape=sym.shape)
+        count, labels = connected_components(pat, directed=False)
+        return int(count), labels
+
+    # ------------------------------------------------------------------ updates
+    def _ensure_dynamic(self) -> DynamicKDTree:
+        if not isinstance(self._tree, DynamicKDTree):
+            static = self._tree
+            self._tree = DynamicKDTree(
+                static.data if static.n else None,
+                k=static.m,
+                leafsize=static.leafsize,
+                metric=static.metric,
+            )
+        return self._tree
+
+    def _reach(self) -> NDArray[np.float64]:
+        """(N,) how far each row looks: a new point closer than this may enter the row."""
+        lens = np.diff(self._indptr)
+        t = math.inf if self.threshold is None else self.threshold
+        reach = np.full(self.n, t)
+        if self.m != "all":
+            full = lens >= int(self.m)
+            last = self._dist[self._indptr[1:][full] - 1]
+            reach[full] = np.minimum(last, t)
+        return reach
+
+    def insert(self, points: ArrayLike) -> NDArray[np.intp]:
+        """Add (b, k) points; return their node indices (they are appended: N..N+b-1).
+
+        Only rows that can change are recomputed: the new points' rows and the rows of old
+        points whose reach (m-th neighbour distance, or the threshold) the new point falls in.
+        """
+        tree = self._ensure_dynamic()
+        pts = validate_points(points, "SpatialProximityGraph.insert", tree.m)
+        if len(pts) == 0:
+            return np.zeros(0, np.intp)
+        reach = self._reach()
+        old_ids = self._ids
+        affected = np.zeros(len(old_ids), bool)
+        if len(old_ids):
+            r_max = float(reach.max())
+            if not math.isfinite(r_max) or not self.metric.is_minkowski:
+                # Unbounded reach, or an asymmetric sum_of metric: check every old row.
+                cand_rows = [np.arange(len(old_ids))] * len(pts)
+            else:
+                lists = tree.query_ball_point(pts, r_max * (1 + 1e-12) + 1e-300)
+                cand_rows = [np.searchsorted(old_ids, np.asarray(lst, np.intp)) for lst in lists]
+            old_pts = self._points_of(old_ids)
+            for x, rows in zip(pts, cand_rows, strict=True):
+                if rows.size:
+                    d = self.metric.distance(old_pts[rows], x)
+                    affected[rows[d <= reach[rows]]] = True
+        new_ids = tree.insert(pts)
+        ids_new = np.concatenate([old_ids, new_ids])
+        rec_ids = np.concatenate([old_ids[affected], new_ids])
+        self._recompute(ids_new, rec_ids)
+        return np.arange(len(old_ids), len(ids_new), dtype=np.intp)
+
+    def delete(self, indices: ArrayLike) -> NDArray[np.intp]:
+        """Remove nodes; the rest are renumbered in order (like ``numpy.delete``).
+
+        Returns:
+            (N_old,) map old index -> new index (-1 for deleted nodes).
+        """
+        idx = np.atleast_1d(np.asarray(indices))
+        if idx.size and idx.dtype.kind not in "iu":
+            raise DataError(
+                f"SpatialProximityGraph.delete: expected integer indices, got {idx.dtype}"
+            )
+        idx = idx.astype(np.intp)
+        if np.any((idx < -self.n) | (idx >= self.n)):
+            raise DataError(
+                f"SpatialProximityGraph.delete: indices out of range [0, {self.n}): {idx.tolist()[:5]}"
+            )
+        idx = np.unique(idx % max(self.n, 1))
+        gone = self._ids[idx]
+        tree = self._ensure_dynamic()
+        tree.delete(gone)
+        keep = np.ones(self.n, bool)
+        keep[idx] = False
+        ids_new = self._ids[keep]
+        rows = np.repeat(self._ids, np.diff(self._indptr))
+        hit = np.unique(rows[np.isin(self._nbr, gone)])
+        rec_ids = hit[np.isin(hit, ids_new)] if self.m != "all" else np.zeros(0, np.intp)
+        self._recompute(ids_new, rec_ids, drop=gone)
+        mapping = np.full(len(keep), -1, np.intp)
+        mapping[keep] = np.arange(int(keep.sum()))
+        return mapping
+
+    def _recompute(
+        self,
+        ids_new: NDArray[np.intp],
+        rec_ids: NDArray[np.intp],
+        drop: NDArray[np.intp] | None = None,
+    ) -> None:
+        """Rebuild storage for rows ``ids_new``: recompute ``rec_ids``, copy the others."""
+        rec_ids = np.sort(rec_ids)
+        r_len, r_nbr, r_dist = self._compute_rows(rec_ids)
+        is_rec = np.isin(ids_new, rec_ids)
+        copy_ids = ids_new[~is_rec]
+        old_rows = np.searchsorted(self._ids, copy_ids)
+        starts = self._indptr[old_rows]
+        lens = self._indptr[old_rows + 1] - starts
+        total = int(lens.sum())
+        offs = np.arange(total) - np.repeat(np.cumsum(lens) - lens, lens)
+        ent = np.repeat(starts, lens) + offs
+        c_nbr, c_dist = self._nbr[ent], self._dist[ent]
+        c_row = np.repeat(np.flatnonzero(~is_rec), lens)
+        if drop is not None and drop.size:
+            keep = ~np.isin(c_nbr, drop)
+            c_nbr, c_dist, c_row = c_nbr[keep], c_dist[keep], c_row[keep]
+        rec_rows = np.flatnonzero(is_rec)
+        all_row = np.concatenate([c_row, np.repeat(rec_rows, r_len)])
+        all_nbr = np.concatenate([c_nbr, r_nbr])
+        all_dist = np.concatenate([c_dist, r_dist])
+        order = np.argsort(all_row, kind="stable")
+        self._ids = ids_new
+        self._nbr = all_nbr[order].astype(np.intp)
+        self._dist = all_dist[order]
+        counts = np.bincount(all_row, minlength=len(ids_new))
+        self._indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.intp)
+
+    def __repr__(self) -> str:
+        return (
+            f"SpatialProximityGraph(n={self.n}, m={self.m!r}, threshold={self.threshold!r}, "
+            f"edges={len(self._nbr)}, metric={self.metric.kind})"
+        )
