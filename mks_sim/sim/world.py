@@ -1,0 +1,222 @@
+"""The simulated workstation: a compiled scene with its dm_control Physics.
+
+Example:
+    >>> from mks_sim.sim.world import build_world
+    >>> world = build_world("scene2", seed=0)
+    >>> world.step(100)
+    >>> world.data.body("cube").xpos  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import logging
+
+import mujoco
+import numpy as np
+from dm_control import mjcf
+from numpy.typing import ArrayLike
+from scipy.spatial.transform import Rotation
+
+from mks_sim.errors import DataError, MksError, NotFound
+from mks_sim.sim import names
+from mks_sim.sim.robot import Robot
+from mks_sim.sim.scenes import SceneSpec, build_scene
+
+log = logging.getLogger(__name__)
+
+# Arm home pose: pinch site at (0, 0.24, 1.12) m (37 cm above the table, behind the region),
+# fingers down, out of the overhead view (found with dm_control IK on the pinch site).
+HOME_ARM_QPOS = (-1.107, 2.788, 1.171, 3.725, -1.846, 4.189)
+HOME_FINGER_QPOS = (0.2, 0.2, 0.2)
+SETTLE_STEPS = 250  # 0.5 s at 2 ms: objects dropped from their resting height come to rest
+_MIN_GAP_M = 0.012  # clearance between footprints of randomly placed objects
+_MAX_TRIES = 500
+
+
+class World:
+    """A compiled scene: MuJoCo model/data, the dm_control Physics and the object specs.
+
+    Attributes:
+        scene: the scene spec (MJCF root, robot entities, object specs).
+        physics: dm_control ``mjcf.Physics`` (for ``physics.bind`` and dm_control IK).
+        model: the raw ``mujoco.MjModel`` (``physics.model.ptr``).
+        data: the raw ``mujoco.MjData`` (``physics.data.ptr``).
+        robot: the Jaco arm and hand entities.
+    """
+
+    def __init__(self, scene: SceneSpec) -> None:
+        self.scene = scene
+        self.physics = mjcf.Physics.from_mjcf_model(scene.root)
+        self.model: mujoco.MjModel = self.physics.model.ptr
+        self.data: mujoco.MjData = self.physics.data.ptr
+        self.robot: Robot = scene.robot
+        self._set_home()
+        mujoco.mj_forward(self.model, self.data)
+        self._initial = self._snapshot()
+
+    # --- state -----------------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        """The scene name."""
+        return self.scene.name
+
+    @property
+    def object_names(self) -> tuple[str, ...]:
+        """Bodies of the movable objects, in placement order."""
+        return tuple(spec.name for spec in self.scene.objects)
+
+    def _snapshot(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        d = self.data
+        return d.qpos.copy(), d.qvel.copy(), d.ctrl.copy(), d.act.copy()
+
+    def mark_initial(self) -> None:
+        """Make the current state the one ``reset()`` restores."""
+        self._initial = self._snapshot()
+
+    def reset(self) -> None:
+        """Restore the initial state (as built, after the seeded randomisation if any)."""
+        mujoco.mj_resetData(self.model, self.data)
+        qpos, qvel, ctrl, act = self._initial
+        self.data.qpos[:] = qpos
+        self.data.qvel[:] = qvel
+        self.data.ctrl[:] = ctrl
+        self.data.act[:] = act
+        mujoco.mj_forward(self.model, self.data)
+
+    def step(self, n: int = 1) -> None:
+        """Advance the simulation ``n`` steps of ``model.opt.timestep`` seconds."""
+        if n < 0:
+            raise MksError(f"step count must be >= 0, got {n}")
+        if n:
+            mujoco.mj_step(self.model, self.data, nstep=n)
+
+    def forward(self) -> None:
+        """Recompute derived quantities (positions, contacts, sensors) without stepping."""
+        mujoco.mj_forward(self.model, self.data)
+
+    def _set_home(self) -> None:
+        for joint, q in zip(names.ARM_JOINTS, HOME_ARM_QPOS, strict=True):
+            self.data.joint(joint).qpos[0] = q
+        for joint, q in zip(names.FINGER_JOINTS, HOME_FINGER_QPOS, strict=True):
+            self.data.joint(joint).qpos[0] = q
+        self.data.qvel[:] = 0.0
+        self.data.ctrl[:] = 0.0
+
+    # --- objects ---------------------------------------------------------------------------
+    def _joint_of(self, name: str) -> mujoco._structs._MjDataJointViews:
+        try:
+            return self.data.joint(names.free_joint(name))
+        except KeyError:
+            raise NotFound(
+                f"no movable object {name!r} in scene {self.name!r}; expected one of "
+                f"{list(self.object_names)}"
+            ) from None
+
+    def set_object_pose(self, name: str, object_to_world: ArrayLike) -> None:
+        """Place object ``name`` (body frame) at the 4x4 pose ``object_to_world``, at rest.
+
+        Raises:
+            NotFound: no such movable object.
+            DataError: the matrix is not a finite 4x4 rigid transform.
+        """
+        T = np.asarray(object_to_world, dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise DataError(f"object_to_world for {name!r}: expected finite (4, 4), got {T.shape}")
+        R = T[:3, :3]
+        if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            raise DataError(f"object_to_world for {name!r}: rotation block is not a rotation")
+        joint = self._joint_of(name)
+        x, y, z, w = Rotation.from_matrix(R).as_quat()
+        joint.qpos[:3] = T[:3, 3]
+        joint.qpos[3:] = (w, x, y, z)
+        joint.qvel[:] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+
+    def randomize(self, rng: np.random.Generator, settle_steps: int = SETTLE_STEPS) -> None:
+        """Place the objects at random non-overlapping resting poses in the object region.
+
+        Each free-standing object gets a uniform position (footprint inside the region) and
+        a uniform yaw; stacked objects (scene 2's sphere) sit on their support with a small
+        random offset. The arm goes home, then the world settles ``settle_steps`` steps and
+        all velocities are zeroed.
+
+        Raises:
+            MksError: no non-overlapping placement found.
+        """
+        scene = self.scene
+        self._set_home()
+        tops = {top: bottom for top, bottom in scene.stacked}
+        cx, cy = scene.region_center_xy
+        hx, hy = scene.region_half_xy
+        placed: dict[str, tuple[float, float]] = {}
+        specs = {s.name: s for s in scene.objects}
+        for spec in scene.objects:
+            if spec.name in tops:
+                continue
+            for _ in range(_MAX_TRIES):
+                r = spec.footprint_radius_m
+                xy = (rng.uniform(cx - hx + r, cx + hx - r), rng.uniform(cy - hy + r, cy + hy - r))
+                if all(
+                    np.hypot(xy[0] - p[0], xy[1] - p[1])
+                    > r + specs[other].footprint_radius_m + _MIN_GAP_M
+                    for other, p in placed.items()
+                ):
+                    break
+            else:
+                raise MksError(
+                    f"scene {self.name!r}: no free spot for {spec.name!r} after {_MAX_TRIES} "
+                    "tries; enlarge the region or remove objects"
+                )
+            placed[spec.name] = xy
+            yaw = rng.uniform(-np.pi, np.pi)
+            self._place(spec.name, xy, yaw, scene.support_z + spec.rest_height_m, spec.rest_quat)
+        for top, bottom in scene.stacked:
+            b = specs[bottom]
+            t = specs[top]
+            offset = rng.uniform(-0.003, 0.003, size=2)
+            bx, by = placed[bottom]
+            z = scene.support_z + 2 * b.rest_height_m + t.rest_height_m
+            self._place(top, (bx + offset[0], by + offset[1]), rng.uniform(-np.pi, np.pi), z,
+                        t.rest_quat)  # fmt: skip
+        mujoco.mj_forward(self.model, self.data)
+        self.settle(settle_steps)
+
+    def settle(self, steps: int = SETTLE_STEPS) -> None:
+        """Step ``steps`` times with zero controls, then zero all velocities."""
+        self.data.ctrl[:] = 0.0
+        self.step(steps)
+        self.data.qvel[:] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+
+    def _place(
+        self,
+        name: str,
+        xy: tuple[float, float],
+        yaw: float,
+        z: float,
+        rest_quat: tuple[float, float, float, float],
+    ) -> None:
+        w, x, y, zq = rest_quat
+        rest = Rotation.from_quat([x, y, zq, w])
+        R = (Rotation.from_euler("z", yaw) * rest).as_matrix()
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = (xy[0], xy[1], z)
+        self.set_object_pose(name, T)
+
+
+def build_world(scene: str, seed: int | None = None) -> World:
+    """Compile scene ``scene``; with a ``seed``, randomise the object poses from it.
+
+    Without a seed the objects keep the scene's default layout (already at rest).
+
+    Raises:
+        NotFound: unknown scene name.
+    """
+    world = World(build_scene(scene))
+    if seed is not None:
+        world.randomize(np.random.default_rng(seed))
+    else:
+        world.settle(SETTLE_STEPS)
+    world.mark_initial()
+    return world
