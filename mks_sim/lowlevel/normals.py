@@ -1,0 +1,229 @@
+"""Surface normals and curvature by PCA over spatial-proximity-graph neighbourhoods.
+
+The paper's "Surface_Curvature" logical sensor (section 4.1, Table 4-5) returns
+``(x, y, z, n)`` with ``n = +1`` on curved and ``-1`` on planar surface points. We compute it
+from the spatial proximity graph (section 1.2): each point's neighbourhood is the point and its
+SPG neighbours; the covariance of that neighbourhood gives the normal (eigenvector of the
+smallest eigenvalue) and the *surface variation* ``lambda_0 / (lambda_0 + lambda_1 +
+lambda_2)`` (Pauly et al. 2002), which is 0 on a plane and grows with curvature (and noise).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import sparse
+
+from mks_sim.errors import DataError
+
+__all__ = [
+    "DEFAULT_CURVATURE_THRESHOLD",
+    "SurfaceNormals",
+    "as_points",
+    "build_graph",
+    "curvature_code",
+    "estimate_normals",
+    "neighbour_table",
+]
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+
+#: Surface variation above which a point is coded curved (+1), else planar (-1).
+#: On a sphere of radius R with neighbourhoods of radius r the variation is about
+#: r^2 / (24 R^2) (a paraboloid cap); on a plane with noise sigma about 2 sigma^2 / r^2.
+#: With the default two-ring SPG neighbourhoods (m = 12, r ~ 2.5 spacings) 0.003 codes a
+#: sphere whose radius is up to ~8 sampling spacings as curved and a plane with noise up
+#: to ~8% of the spacing as planar (measured: docs/grouping.md). Other scales: ``threshold=``.
+DEFAULT_CURVATURE_THRESHOLD = 0.003
+
+
+class GraphLike(Protocol):
+    """Anything with a (N, N) sparse adjacency whose row i lists i's neighbours (an SPG)."""
+
+    @property
+    def adjacency(self) -> Any: ...
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceNormals:
+    """Per-point normals and surface variation.
+
+    Attributes:
+        normals: (N, 3) float unit normals (oriented towards the viewpoint when one was given,
+            else away from the cloud's centroid).
+        curvature: (N,) float surface variation in [0, 1/3].
+    """
+
+    normals: FloatArray
+    curvature: FloatArray
+
+
+def as_points(points: ArrayLike, where: str, min_points: int = 1) -> FloatArray:
+    """Validate an (N, 3) finite float array; raise :class:`DataError` otherwise."""
+    try:
+        arr = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{where}: expected (N, 3) numbers, got {type(points).__name__}") from exc
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise DataError(f"{where}: expected shape (N, 3), got {arr.shape}")
+    if arr.shape[0] < min_points:
+        raise DataError(f"{where}: expected at least {min_points} points, got {arr.shape[0]}")
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.count_nonzero(~np.all(np.isfinite(arr), axis=1)))
+        raise DataError(f"{where}: {bad} rows contain NaN or inf; drop them first")
+    return arr
+
+
+class _KnnGraph:
+    """Minimal SPG stand-in (m nearest neighbours, optional distance threshold) on cKDTree."""
+
+    def __init__(self, points: FloatArray, m: int, threshold: float | None) -> None:
+        from scipy.spatial import cKDTree
+
+        n = len(points)
+        k = min(m + 1, n)
+        tree = cKDTree(points, balanced_tree=True)
+        dist, idx = tree.query(points, k=k, distance_upper_bound=threshold or np.inf)
+        dist, idx = np.atleast_2d(dist)[:, 1:], np.atleast_2d(idx)[:, 1:]
+        ok = idx < n
+        rows = np.repeat(np.arange(n), idx.shape[1])[ok.ravel()]
+        self.adjacency = sparse.csr_array(
+            (dist[ok], (rows, idx[ok])), shape=(n, n), dtype=np.float64
+        )
+
+
+def build_graph(points: FloatArray, m: int = 12, threshold: float | None = None) -> GraphLike:
+    """The spatial proximity graph of ``points`` (m nearest neighbours, optional threshold).
+
+    Uses :class:`mks_sim.lowlevel.spg.SpatialProximityGraph`; a cKDTree k-NN graph stands in
+    only if that module cannot be imported.
+    """
+    try:
+        from mks_sim.lowlevel.spg import SpatialProximityGraph
+    except ImportError:  # pragma: no cover - the SPG room is part of the package
+        log.debug("mks_sim.lowlevel.spg unavailable; using a cKDTree k-NN graph")
+        return _KnnGraph(points, m, threshold)
+    return SpatialProximityGraph(points, m=m, threshold=threshold)  # type: ignore[no-any-return]
+
+
+def neighbour_table(
+    graph: GraphLike, include_self: bool = True, rings: int = 1
+) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
+    """The SPG's neighbour lists as a padded table.
+
+    Args:
+        graph: the SPG.
+        include_self: put each point first in its own list.
+        rings: 1 = the SPG neighbours; 2 = also the neighbours' neighbours (undirected), etc.
+
+    Returns:
+        ``(idx, valid)``: (N, K) int neighbour indices (column 0 is the point itself when
+        ``include_self``), padded with the point's own index, and the (N, K) mask of real
+        entries.
+    """
+    adj = sparse.csr_array(graph.adjacency)
+    n = adj.shape[0]
+    if rings > 1:
+        one = sparse.csr_array((adj + adj.T) > 0, dtype=np.float64)
+        reach = one.copy()
+        for _ in range(rings - 1):
+            reach = sparse.csr_array(((reach @ one) + reach) > 0, dtype=np.float64)
+        reach.setdiag(0)
+        reach.eliminate_zeros()
+        adj = sparse.csr_array(reach)
+        adj.sort_indices()
+    counts = np.diff(adj.indptr)
+    k = int(counts.max(initial=0)) + int(include_self)
+    idx = np.repeat(np.arange(n)[:, None], max(k, 1), axis=1)
+    valid = np.zeros((n, max(k, 1)), dtype=bool)
+    offset = int(include_self)
+    if include_self:
+        valid[:, 0] = True
+    if adj.nnz:
+        rows = np.repeat(np.arange(n), counts)
+        cols = np.arange(adj.nnz) - np.repeat(adj.indptr[:-1], counts) + offset
+        idx[rows, cols] = adj.indices
+        valid[rows, cols] = True
+    return idx, valid
+
+
+def _pca(
+    pts: FloatArray, idx: NDArray[np.intp], valid: NDArray[np.bool_]
+) -> tuple[FloatArray, FloatArray]:
+    w = valid.astype(np.float64)  # (N, K)
+    nb = pts[idx]  # (N, K, 3)
+    wsum = w.sum(axis=1)
+    mean = np.einsum("nk,nki->ni", w, nb) / wsum[:, None]  # (N, 3)
+    d = nb - mean[:, None, :]
+    cov = np.einsum("nk,nki,nkj->nij", w, d, d) / wsum[:, None, None]  # (N, 3, 3)
+    evals, evecs = np.linalg.eigh(cov)  # ascending
+    total = evals.sum(axis=1)
+    curvature = np.divide(
+        np.clip(evals[:, 0], 0.0, None), total, out=np.zeros(len(pts)), where=total > 0
+    )
+    return evecs[:, :, 0].copy(), curvature
+
+
+def estimate_normals(
+    points: ArrayLike,
+    graph: GraphLike | None = None,
+    *,
+    m: int = 12,
+    viewpoint: ArrayLike | None = None,
+    curvature_rings: int = 2,
+) -> SurfaceNormals:
+    """Normals and surface variation by PCA over each point's SPG neighbourhood.
+
+    Args:
+        points: (N, 3) float surface points (any length unit).
+        graph: the points' SPG (``SpatialProximityGraph`` or anything with ``.adjacency``);
+            built with ``m`` nearest neighbours when None.
+        m: neighbours per point when the graph is built here.
+        viewpoint: (3,) sensor position; normals are flipped to face it. When None they face
+            away from the centroid of ``points`` (right for one convex object).
+        curvature_rings: SPG rings of the neighbourhood whose variation is the curvature
+            (normals always use ring 1). Two rings (~4x the points of one) make the
+            curvature of a sphere stand well above sensor noise on a plane, which a one-ring
+            neighbourhood does not (variation grows as r^2 on a sphere and falls as 1/r^2
+            for noise on a plane, r the neighbourhood radius).
+
+    Returns:
+        :class:`SurfaceNormals`.
+    """
+    pts = as_points(points, "estimate_normals: points", min_points=3)
+    if graph is None:
+        graph = build_graph(pts, m=m)
+    normals, curvature = _pca(pts, *neighbour_table(graph))
+    if curvature_rings > 1:
+        _, curvature = _pca(pts, *neighbour_table(graph, rings=curvature_rings))
+    if viewpoint is not None:
+        vp = np.asarray(viewpoint, dtype=np.float64).reshape(3)
+        toward = vp[None, :] - pts
+    else:
+        toward = pts - pts.mean(axis=0)
+    flip = np.einsum("ni,ni->n", normals, toward) < 0
+    normals[flip] *= -1.0
+    return SurfaceNormals(normals=normals, curvature=curvature)
+
+
+def curvature_code(
+    curvature: ArrayLike, threshold: float = DEFAULT_CURVATURE_THRESHOLD
+) -> NDArray[np.int8]:
+    """The Surface_Curvature code of Table 4-5: +1 curved, -1 planar.
+
+    Args:
+        curvature: (N,) surface variation from :func:`estimate_normals`.
+        threshold: variation above which a point is curved (see
+            :data:`DEFAULT_CURVATURE_THRESHOLD`).
+
+    Returns:
+        (N,) int8 array of +1 / -1.
+    """
+    c = np.asarray(curvature, dtype=np.float64)
+    return np.where(c > threshold, 1, -1).astype(np.int8)

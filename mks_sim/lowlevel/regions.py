@@ -1,0 +1,439 @@
+"""Region growing on the spatial proximity graph: planar and curved regions, plane and sphere fits.
+
+Section 2.2 of the paper: "the points in the graph can be grouped to find the planar regions",
+whose intersections give the vertexes of a polyhedron; section 4.1 separates planar from curved
+surface points. Planar regions grow over SPG edges from the flattest points while the normal
+stays within an angle of the region's plane and the point stays within a distance of it; the
+remaining curved points are split into SPG-connected curved regions and fitted with spheres.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import optimize, sparse
+from scipy.sparse import csgraph
+
+from mks_sim.errors import DataError
+from mks_sim.lowlevel.normals import (
+    DEFAULT_CURVATURE_THRESHOLD,
+    GraphLike,
+    as_points,
+    build_graph,
+    curvature_code,
+    estimate_normals,
+    neighbour_table,
+)
+
+__all__ = [
+    "CurvedRegion",
+    "PlanarRegion",
+    "Plane",
+    "Segmentation",
+    "SphereFit",
+    "fit_plane",
+    "fit_plane_ransac",
+    "fit_sphere",
+    "grow_planar_regions",
+    "median_spacing",
+    "segment_surfaces",
+]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
+
+
+@dataclass(frozen=True, eq=False)
+class Plane:
+    """The plane ``normal . x = offset``.
+
+    Attributes:
+        normal: (3,) unit normal.
+        offset: signed distance of the plane from the origin along ``normal``.
+        rmse: RMS point-to-plane distance of the fitted points (0 for a given plane).
+    """
+
+    normal: FloatArray
+    offset: float
+    rmse: float = 0.0
+
+    def distance(self, points: ArrayLike) -> FloatArray:
+        """(N,) signed distances of (N, 3) points (positive on the normal's side)."""
+        return np.asarray(points, dtype=np.float64) @ self.normal - self.offset
+
+    def flipped(self) -> Plane:
+        """The same plane with the opposite normal."""
+        return Plane(-self.normal, -self.offset, self.rmse)
+
+
+@dataclass(frozen=True, eq=False)
+class PlanarRegion:
+    """A planar region of the SPG (a face of a polyhedron).
+
+    Attributes:
+        indices: (n,) int indices of the member points.
+        plane: robust fit; the normal agrees with the members' (oriented) point normals.
+        centroid: (3,) mean of the members.
+    """
+
+    indices: IntArray
+    plane: Plane
+    centroid: FloatArray
+
+    @property
+    def normal(self) -> FloatArray:
+        return self.plane.normal
+
+
+@dataclass(frozen=True, eq=False)
+class SphereFit:
+    """A sphere fitted to points: centre (3,), radius and RMS radial residual (points' units)."""
+
+    center: FloatArray
+    radius: float
+    rmse: float
+
+
+@dataclass(frozen=True, eq=False)
+class CurvedRegion:
+    """An SPG-connected set of curved (+1) points and its sphere fit (None if degenerate)."""
+
+    indices: IntArray
+    sphere: SphereFit | None
+
+
+@dataclass(frozen=True, eq=False)
+class Segmentation:
+    """Grouping result of one cloud.
+
+    Attributes:
+        normals: (N, 3) oriented unit normals.
+        curvature: (N,) surface variation.
+        codes: (N,) int8 Surface_Curvature code (+1 curved, -1 planar).
+        labels: (N,) int, index into ``planes`` or -1.
+        planes: planar regions, largest first.
+        curved: curved regions, largest first.
+        spacing: median SPG edge length (the sampling spacing).
+    """
+
+    normals: FloatArray
+    curvature: FloatArray
+    codes: NDArray[np.int8]
+    labels: IntArray
+    planes: tuple[PlanarRegion, ...]
+    curved: tuple[CurvedRegion, ...]
+    spacing: float
+
+
+def median_spacing(graph: GraphLike) -> float:
+    """Median length of the SPG's edges (0 if it has none)."""
+    data = sparse.csr_array(graph.adjacency).data
+    return float(np.median(data)) if data.size else 0.0
+
+
+def fit_plane(points: ArrayLike, iterations: int = 3) -> Plane:
+    """Least-squares plane with iterative outlier rejection (residual > 3 robust sigmas).
+
+    Args:
+        points: (N >= 3, 3) points.
+        iterations: re-fits after rejecting outliers.
+
+    Returns:
+        :class:`Plane` (normal sign arbitrary) with the RMS residual of the kept points.
+    """
+    pts = as_points(points, "fit_plane: points", min_points=3)
+    keep = np.ones(len(pts), dtype=bool)
+    normal, offset = np.array([0.0, 0.0, 1.0]), 0.0
+    for _ in range(max(1, iterations)):
+        sub = pts[keep]
+        c = sub.mean(axis=0)
+        _, _, vt = np.linalg.svd(sub - c, full_matrices=False)
+        normal = vt[2]
+        offset = float(normal @ c)
+        r = np.abs(pts @ normal - offset)
+        sigma = 1.4826 * np.median(r[keep])
+        new_keep = r <= max(3.0 * sigma, 1e-12)
+        if new_keep.sum() < 3 or np.array_equal(new_keep, keep):
+            break
+        keep = new_keep
+    r = pts[keep] @ normal - offset
+    return Plane(normal, offset, float(np.sqrt(np.mean(r**2))))
+
+
+def fit_plane_ransac(
+    points: ArrayLike,
+    threshold: float,
+    rng: np.random.Generator,
+    iterations: int = 200,
+) -> tuple[Plane, NDArray[np.bool_]]:
+    """RANSAC plane (3-point samples) refined by :func:`fit_plane` on its inliers.
+
+    Args:
+        points: (N >= 3, 3) points.
+        threshold: inlier distance (points' units).
+        rng: random generator (samples).
+        iterations: RANSAC samples.
+
+    Returns:
+        ``(plane, inliers)`` with (N,) bool inlier mask of the refined plane.
+    """
+    pts = as_points(points, "fit_plane_ransac: points", min_points=3)
+    n = len(pts)
+    samples = rng.integers(0, n, size=(iterations, 3))
+    a, b, c = pts[samples[:, 0]], pts[samples[:, 1]], pts[samples[:, 2]]
+    nrm = np.cross(b - a, c - a)  # (I, 3)
+    length = np.linalg.norm(nrm, axis=1)
+    ok = length > 1e-12
+    if not ok.any():
+        raise DataError("fit_plane_ransac: points are collinear or coincident")
+    nrm = nrm[ok] / length[ok, None]
+    off = np.einsum("ij,ij->i", nrm, a[ok])
+    # Count inliers of every candidate in chunks to bound memory at (chunk, N).
+    best, best_count = 0, -1
+    for start in range(0, len(nrm), 32):
+        d = np.abs(nrm[start : start + 32] @ pts.T - off[start : start + 32, None])
+        counts = (d <= threshold).sum(axis=1)
+        j = int(np.argmax(counts))
+        if counts[j] > best_count:
+            best, best_count = start + j, int(counts[j])
+    inliers = np.abs(pts @ nrm[best] - off[best]) <= threshold
+    plane = fit_plane(pts[inliers]) if inliers.sum() >= 3 else Plane(nrm[best], float(off[best]))
+    inliers = np.abs(plane.distance(pts)) <= threshold
+    return plane, inliers
+
+
+def fit_sphere(points: ArrayLike) -> SphereFit:
+    """Sphere by algebraic least squares, refined geometrically (Levenberg-Marquardt).
+
+    The algebraic fit solves ``|x|^2 = 2 c.x + k`` linearly; the refinement minimises the
+    radial residuals ``|x - c| - r``.
+
+    Args:
+        points: (N >= 4, 3) points.
+
+    Returns:
+        :class:`SphereFit`.
+    """
+    pts = as_points(points, "fit_sphere: points", min_points=4)
+    sv = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
+    if sv[2] <= 1e-9 * sv[0]:
+        raise DataError("fit_sphere: points are coplanar and do not determine a sphere")
+    A = np.column_stack([2.0 * pts, np.ones(len(pts))])
+    b = np.einsum("ij,ij->i", pts, pts)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    center0 = sol[:3]
+    r2 = sol[3] + center0 @ center0
+    if not np.isfinite(r2) or r2 <= 0:
+        raise DataError("fit_sphere: points do not determine a sphere (coplanar or too few)")
+
+    def residual(x: FloatArray) -> FloatArray:
+        return np.linalg.norm(pts - x[:3], axis=1) - x[3]
+
+    res = optimize.least_squares(residual, np.append(center0, np.sqrt(r2)), method="lm")
+    center, radius = res.x[:3], abs(float(res.x[3]))
+    rmse = float(np.sqrt(np.mean(residual(res.x) ** 2)))
+    return SphereFit(center=center, radius=radius, rmse=rmse)
+
+
+def _rows(adj: sparse.csr_array, frontier: IntArray) -> IntArray:
+    starts, ends = adj.indptr[frontier], adj.indptr[frontier + 1]
+    lengths = ends - starts
+    if lengths.sum() == 0:
+        return np.zeros(0, dtype=np.intp)
+    pos = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(lengths.sum())
+    return np.unique(adj.indices[pos])
+
+
+def grow_planar_regions(
+    points: FloatArray,
+    normals: FloatArray,
+    graph: GraphLike,
+    seeds_allowed: NDArray[np.bool_],
+    order: IntArray,
+    *,
+    angle_deg: float,
+    distance: float,
+    min_points: int,
+) -> tuple[IntArray, list[PlanarRegion]]:
+    """Grow planar regions over the SPG breadth-first from seeds in ``order``.
+
+    A neighbour joins the region when its normal is within ``angle_deg`` of the region's plane
+    normal (sign ignored) and it lies within ``distance`` of the plane; the plane is refitted
+    each time the region doubles. Regions smaller than ``min_points`` are dissolved.
+
+    Returns:
+        ``(labels, regions)``: (N,) region index or -1, and the regions (largest first).
+    """
+    adj = sparse.csr_array(graph.adjacency)
+    adj = sparse.csr_array(adj + adj.T)
+    n = len(points)
+    labels = np.full(n, -1, dtype=np.intp)
+    cos_tol = np.cos(np.radians(angle_deg))
+    members_list: list[IntArray] = []
+    for seed in order:
+        if labels[seed] != -1 or not seeds_allowed[seed]:
+            continue
+        rid = len(members_list)
+        labels[seed] = rid
+        members = [np.array([seed])]
+        size, refit_at = 1, 8
+        normal, origin = normals[seed], points[seed]
+        frontier = np.array([seed])
+        while frontier.size:
+            cand = _rows(adj, frontier)
+            cand = cand[labels[cand] == -1]
+            if cand.size == 0:
+                break
+            ok = (np.abs(normals[cand] @ normal) >= cos_tol) & (
+                np.abs((points[cand] - origin) @ normal) <= distance
+            )
+            frontier = cand[ok]
+            labels[frontier] = rid
+            members.append(frontier)
+            size += frontier.size
+            if size >= refit_at:
+                allm = np.concatenate(members)
+                pl = fit_plane(points[allm], iterations=1)
+                normal, origin = pl.normal, points[allm].mean(axis=0)
+                refit_at = 2 * size
+        members_list.append(np.concatenate(members))
+    final = np.full(n, -1, dtype=np.intp)
+    big = [m for m in sorted(members_list, key=len, reverse=True) if len(m) >= min_points]
+    planes = []
+    for rid, grown in enumerate(big):
+        final[grown] = rid
+        pl = fit_plane(points[grown])
+        planes.append(pl.flipped() if pl.normal @ normals[grown].mean(axis=0) < 0 else pl)
+    _absorb_boundary(points, graph, final, planes, distance / 2)
+    regions = []
+    for rid, pl in enumerate(planes):
+        kept = np.flatnonzero(final == rid)
+        regions.append(PlanarRegion(kept, pl, points[kept].mean(axis=0)))
+    return final, regions
+
+
+def _absorb_boundary(
+    points: FloatArray,
+    graph: GraphLike,
+    labels: IntArray,
+    planes: list[Plane],
+    distance: float,
+    passes: int = 3,
+) -> None:
+    """Give unlabelled points next to a region to the nearest adjacent plane within
+    ``distance`` (points near edges, whose blurred normals kept them out), in place."""
+    if not planes:
+        return
+    idx, valid = neighbour_table(graph, include_self=False)
+    normals = np.stack([p.normal for p in planes])
+    offsets = np.array([p.offset for p in planes])
+    for _ in range(passes):
+        free = np.flatnonzero(labels < 0)
+        if free.size == 0:
+            return
+        nb = labels[idx[free]]  # (F, K) neighbour labels
+        nb[~valid[free]] = -1
+        best = np.full(free.size, np.inf)
+        choice = np.full(free.size, -1, dtype=np.intp)
+        for k in range(nb.shape[1]):
+            lab = nb[:, k]
+            has = lab >= 0
+            d = np.full(free.size, np.inf)
+            d[has] = np.abs(
+                np.einsum("ij,ij->i", points[free[has]], normals[lab[has]]) - offsets[lab[has]]
+            )
+            better = d < best
+            best[better], choice[better] = d[better], lab[better]
+        take = best <= distance
+        if not take.any():
+            return
+        labels[free[take]] = choice[take]
+
+
+def segment_surfaces(
+    points: ArrayLike,
+    graph: GraphLike | None = None,
+    *,
+    m: int = 12,
+    viewpoint: ArrayLike | None = None,
+    curvature_threshold: float = DEFAULT_CURVATURE_THRESHOLD,
+    angle_deg: float = 12.0,
+    distance: float | None = None,
+    min_points: int = 20,
+    seeds: str = "planar",
+) -> Segmentation:
+    """Group a cloud on its SPG into planar regions and curved regions (sections 2.2, 4.1).
+
+    Args:
+        points: (N, 3) surface points of one object (or a scene).
+        graph: the SPG of ``points``; built with ``m`` neighbours when None.
+        m: SPG neighbours when the graph is built here.
+        viewpoint: (3,) sensor position for normal orientation (see :func:`estimate_normals`).
+        curvature_threshold: Surface_Curvature threshold (planar seeds are below it).
+        angle_deg: max angle between a point normal and its region's plane normal.
+        distance: max point-to-plane distance; default 2 x the median SPG edge length.
+        min_points: smallest region kept.
+        seeds: ``"planar"``: regions start only at points coded planar (-1), so curved
+            surfaces stay curved regions; ``"all"``: any point may seed, flattest first (use
+            when noise exceeds ~10% of the sampling spacing and the curvature code marks
+            planes curved too).
+
+    Returns:
+        :class:`Segmentation`.
+    """
+    pts = as_points(points, "segment_surfaces: points", min_points=4)
+    if seeds not in ("planar", "all"):
+        raise DataError(f"segment_surfaces: seeds must be 'planar' or 'all', got {seeds!r}")
+    if graph is None:
+        graph = build_graph(pts, m=m)
+    sn = estimate_normals(pts, graph, viewpoint=viewpoint)
+    codes = curvature_code(sn.curvature, curvature_threshold)
+    spacing = median_spacing(graph)
+    dist = 2.0 * spacing if distance is None else float(distance)
+    order = np.argsort(sn.curvature, kind="stable")
+    labels, planes = grow_planar_regions(
+        pts,
+        sn.normals,
+        graph,
+        codes < 0 if seeds == "planar" else np.ones(len(pts), dtype=bool),
+        order,
+        angle_deg=angle_deg,
+        distance=dist,
+        min_points=min_points,
+    )
+    curved = _curved_regions(pts, graph, (codes > 0) & (labels < 0), min_points)
+    log.debug("segment_surfaces: %d planar, %d curved regions", len(planes), len(curved))
+    return Segmentation(
+        normals=sn.normals,
+        curvature=sn.curvature,
+        codes=codes,
+        labels=labels,
+        planes=tuple(planes),
+        curved=tuple(curved),
+        spacing=spacing,
+    )
+
+
+def _curved_regions(
+    points: FloatArray, graph: GraphLike, mask: NDArray[np.bool_], min_points: int
+) -> list[CurvedRegion]:
+    idx = np.flatnonzero(mask)
+    if idx.size < max(min_points, 4):
+        return []
+    adj = sparse.csr_array(graph.adjacency)[idx][:, idx]
+    _, comp = csgraph.connected_components(adj, directed=True, connection="weak")
+    out: list[CurvedRegion] = []
+    for c in np.argsort(-np.bincount(comp)):
+        members = idx[comp == c]
+        if len(members) < max(min_points, 4):
+            break
+        try:
+            sphere: SphereFit | None = fit_sphere(points[members])
+        except DataError:
+            sphere = None
+        out.append(CurvedRegion(members, sphere))
+    return out

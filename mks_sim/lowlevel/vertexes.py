@@ -1,0 +1,121 @@
+"""Vertexes of a polyhedron from triples of its face planes, supported by the data (section 2.2).
+
+"The planar faces of the detected object are then intersected to find the vertexes of the
+object." Every triple of planes whose normals are far from coplanar meets in one point; only
+points that lie near the observed points of each of the three faces are kept (an intersection
+of three face planes far from one of the faces is not a corner of the object). A plane the data
+do not sample, e.g. the table an object rests on, can be passed as an extra face: it is trusted
+without support (the vertex lies on it by construction).
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from mks_sim.errors import DataError
+from mks_sim.lowlevel.regions import PlanarRegion, Plane
+
+__all__ = ["Vertexes", "plane_vertexes"]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class Vertexes:
+    """Detected vertexes.
+
+    Attributes:
+        points: (V, 3) vertex positions.
+        faces: (V, 3) int plane indices meeting at each vertex: indices < len(regions) refer
+            to the regions, ``len(regions) + j`` to ``extra_planes[j]``.
+        normals: (V, 3, 3) the three face normals of each vertex (rows, in ``faces`` order),
+            oriented as the planes are.
+        support: (V,) float, the largest of the distances from the vertex to the nearest
+            observed point of each of its (region) faces.
+    """
+
+    points: FloatArray
+    faces: NDArray[np.intp]
+    normals: FloatArray
+    support: FloatArray
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+def plane_vertexes(
+    regions: Sequence[PlanarRegion],
+    points: ArrayLike,
+    *,
+    extra_planes: Sequence[Plane] = (),
+    tolerance: float,
+    min_angle_deg: float = 30.0,
+    merge_distance: float | None = None,
+) -> Vertexes:
+    """Intersect triples of face planes; keep the intersections supported by the data.
+
+    Args:
+        regions: planar regions (faces) of one object, indices into ``points``.
+        points: (N, 3) the cloud the regions index.
+        extra_planes: planes trusted as faces without data support, e.g. the table under the
+            object (normal pointing out of the object, i.e. down into the table).
+        tolerance: a vertex must lie within this distance of an observed point of each of its
+            region faces (a few sampling spacings: points within ~2 spacings of an edge get
+            blurred normals and drop out of the faces).
+        min_angle_deg: each pair of the three normals must be at least this far from
+            parallel, and the triple must not be near-coplanar (|det| >= sin of it).
+        merge_distance: vertexes closer than this are merged (more than three faces meeting);
+            default ``tolerance / 2``.
+
+    Returns:
+        :class:`Vertexes` (possibly empty).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise DataError(f"plane_vertexes: expected (N, 3) points, got {pts.shape}")
+    if tolerance <= 0:
+        raise DataError(f"plane_vertexes: tolerance must be > 0, got {tolerance}")
+    planes = [r.plane for r in regions] + list(extra_planes)
+    trees = [cKDTree(pts[r.indices]) for r in regions]
+    n_regions = len(regions)
+    sin_min = np.sin(np.radians(min_angle_deg))
+    found: list[tuple[FloatArray, tuple[int, int, int], float]] = []
+    for triple in itertools.combinations(range(len(planes)), 3):
+        if sum(t >= n_regions for t in triple) > 1:
+            continue
+        N = np.stack([planes[t].normal for t in triple])  # (3, 3)
+        pair_sin = [np.linalg.norm(np.cross(N[a], N[b])) for a, b in ((0, 1), (0, 2), (1, 2))]
+        if min(pair_sin) < sin_min or abs(np.linalg.det(N)) < sin_min * sin_min:
+            continue
+        d = np.array([planes[t].offset for t in triple])
+        v = np.linalg.solve(N, d)
+        dists = [float(trees[t].query(v)[0]) for t in triple if t < n_regions]
+        worst = max(dists) if dists else 0.0
+        if worst <= tolerance:
+            found.append((v, triple, worst))
+    merge = tolerance / 2 if merge_distance is None else merge_distance
+    kept: list[tuple[FloatArray, tuple[int, int, int], float]] = []
+    for v, triple, worst in sorted(found, key=lambda f: f[2]):
+        if all(np.linalg.norm(v - k[0]) > merge for k in kept):
+            kept.append((v, triple, worst))
+    log.debug(
+        "plane_vertexes: %d planes, %d candidates, %d kept", len(planes), len(found), len(kept)
+    )
+    if not kept:
+        return Vertexes(
+            np.zeros((0, 3)), np.zeros((0, 3), np.intp), np.zeros((0, 3, 3)), np.zeros(0)
+        )
+    return Vertexes(
+        points=np.stack([k[0] for k in kept]),
+        faces=np.array([k[1] for k in kept], dtype=np.intp),
+        normals=np.stack([np.stack([planes[t].normal for t in k[1]]) for k in kept]),
+        support=np.array([k[2] for k in kept]),
+    )

@@ -1,0 +1,201 @@
+"""Grouping on the SPG: normals, curvature code, planar/curved regions, fits, vertexes."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from mks_sim.errors import DataError
+from mks_sim.geometry.meshes import box_mesh, sample_surface
+from mks_sim.geometry.scan import synthetic_scan
+from mks_sim.geometry.transforms import make_transform
+from mks_sim.lowlevel.grouping import (
+    Plane,
+    build_graph,
+    curvature_code,
+    estimate_normals,
+    fit_plane,
+    fit_plane_ransac,
+    fit_sphere,
+    neighbour_table,
+    plane_vertexes,
+    segment_surfaces,
+)
+
+CUBE = 6.0  # the paper's cube (Table 4-7: side 2 units there; Table 4-5: side 6)
+CUBE_CORNERS = np.array(list(itertools.product((-3.0, 3.0), repeat=3)))
+
+
+def _sphere(n: int, radius: float, center: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    v = rng.normal(size=(n, 3))
+    return center + radius * v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _cube(n: int, noise: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    pts, nrm = sample_surface(box_mesh(CUBE), n, rng=rng)
+    return pts + rng.normal(0.0, noise, pts.shape), nrm
+
+
+def test_normals_match_faces_and_face_viewpoint() -> None:
+    rng = np.random.default_rng(1)
+    pts, true_n = _cube(3000, 0.01, rng)
+    sn = estimate_normals(pts)
+    interior = np.sort(np.abs(pts), axis=1)[:, 1] < 2.5
+    cos = np.einsum("ij,ij->i", sn.normals[interior], true_n[interior])
+    assert np.mean(cos > np.cos(np.radians(5))) > 0.97  # oriented outward, accurate
+    eye = np.array([0.0, 0.0, -50.0])
+    flipped = estimate_normals(pts, viewpoint=eye).normals
+    assert np.all(np.einsum("ij,ij->i", flipped, eye - pts) >= 0)
+
+
+def test_neighbour_table_matches_graph_rows() -> None:
+    rng = np.random.default_rng(2)
+    pts = rng.uniform(size=(200, 3))
+    g = build_graph(pts, m=6)
+    idx, valid = neighbour_table(g)
+    assert np.all(idx[:, 0] == np.arange(200))
+    from scipy.spatial import cKDTree
+
+    _, brute = cKDTree(pts).query(pts, k=7)
+    for i in range(0, 200, 17):
+        assert set(idx[i, valid[i]]) == set(brute[i])
+    idx2, valid2 = neighbour_table(g, rings=2)
+    assert valid2.sum(axis=1).mean() > 2 * valid.sum(axis=1).mean()
+
+
+def test_curvature_code_separates_cube_from_sphere_like_table_4_6() -> None:
+    # Table 4-5 / 4-6: sphere of radius 3 atop a cube of side 6; +1 curved, -1 planar.
+    rng = np.random.default_rng(3)
+    cube, _ = _cube(3000, 0.01, rng)
+    sphere = _sphere(1500, 3.0, np.array([0.0, 0.0, 6.5]), rng) + rng.normal(0, 0.01, (1500, 3))
+    pts = np.vstack([cube, sphere])
+    # The paper separates objects by SPG connectivity first; do the same per object.
+    cube_code = curvature_code(estimate_normals(cube).curvature)
+    sphere_code = curvature_code(estimate_normals(sphere).curvature)
+    face_interior = np.sort(np.abs(cube), axis=1)[:, 1] < 3.0 - 1.2
+    assert np.mean(cube_code[face_interior] == -1) > 0.9
+    assert np.mean(sphere_code == 1) > 0.98
+    # The paper's Table 4-5 sample points get the paper's codes.
+    paper = np.array([[0.0, 0.0, 3.0], [-1.76, 0.0, 2.43], [2.31, 1.68, 0.93]])
+    assert np.all(np.linalg.norm(paper, axis=1) == pytest.approx(3.0, abs=0.02))
+    assert pts.shape == (4500, 3)
+
+
+def test_segment_cube_into_six_faces_with_true_planes() -> None:
+    rng = np.random.default_rng(4)
+    pts, _ = _cube(3000, 0.01, rng)
+    seg = segment_surfaces(pts)
+    assert len(seg.planes) == 6
+    assert not seg.curved or all(len(c.indices) < 200 for c in seg.curved)
+    for region in seg.planes:
+        n = region.normal
+        axis = int(np.argmax(np.abs(n)))
+        assert abs(n[axis]) > np.cos(np.radians(1.0))
+        # outward normal; face at +-3 along the axis: n . x = 3
+        assert region.plane.offset == pytest.approx(3.0, abs=0.01)
+        assert region.plane.rmse == pytest.approx(0.01, rel=0.3)
+        assert len(region.indices) > 300
+
+
+def test_sphere_fit_recovers_centre_and_radius() -> None:
+    rng = np.random.default_rng(5)
+    center = np.array([1.0, -2.0, 0.5])
+    pts = _sphere(800, 2.5, center, rng) + rng.normal(0, 0.02, (800, 3))
+    fit = fit_sphere(pts)
+    assert np.linalg.norm(fit.center - center) < 0.01
+    assert fit.radius == pytest.approx(2.5, abs=0.01)
+    assert fit.rmse == pytest.approx(0.02, rel=0.2)
+    # a cap (one-sided view) still works
+    cap = pts[pts[:, 2] > center[2] + 1.0]
+    fit = fit_sphere(cap)
+    assert fit.radius == pytest.approx(2.5, abs=0.05)
+
+
+def test_curved_region_of_cube_and_sphere_scene() -> None:
+    rng = np.random.default_rng(6)
+    cube, _ = _cube(3000, 0.005, rng)
+    sphere = _sphere(1500, 3.0, np.array([0.0, 0.0, 12.0]), rng)
+    seg = segment_surfaces(np.vstack([cube, sphere]), viewpoint=np.array([20.0, 20.0, 40.0]))
+    big = [c for c in seg.curved if len(c.indices) > 500]
+    assert len(big) == 1 and big[0].sphere is not None
+    assert big[0].sphere.radius == pytest.approx(3.0, abs=0.02)
+    assert np.linalg.norm(big[0].sphere.center - [0, 0, 12]) < 0.02
+    assert len(seg.planes) == 6
+
+
+def test_robust_plane_fits_reject_outliers() -> None:
+    rng = np.random.default_rng(7)
+    xy = rng.uniform(-1, 1, (500, 2))
+    pts = np.column_stack([xy, 0.3 * xy[:, 0] + 0.1 + rng.normal(0, 0.001, 500)])
+    pts[:50, 2] += rng.uniform(0.2, 1.0, 50)  # 10 % gross outliers
+    truth = np.array([-0.3, 0.0, 1.0]) / np.linalg.norm([-0.3, 0.0, 1.0])
+    for plane in (fit_plane(pts), fit_plane_ransac(pts, 0.005, rng)[0]):
+        assert abs(plane.normal @ truth) > np.cos(np.radians(0.2))
+        assert plane.rmse < 0.002
+    _, inliers = fit_plane_ransac(pts, 0.005, rng)
+    assert inliers[50:].mean() > 0.99 and inliers[:50].mean() < 0.05
+
+
+def test_all_eight_cube_vertexes_from_full_sample() -> None:
+    rng = np.random.default_rng(8)
+    pts, _ = _cube(4000, 0.01, rng)
+    seg = segment_surfaces(pts)
+    v = plane_vertexes(seg.planes, pts, tolerance=5 * seg.spacing)
+    assert len(v) == 8
+    d = np.linalg.norm(v.points[:, None] - CUBE_CORNERS[None], axis=2)
+    assert sorted(np.argmin(d, axis=1)) == list(range(8))
+    assert d.min(axis=1).max() < 0.03
+    # the face normals at each vertex point out of the cube at that corner
+    for p, nrm in zip(v.points, v.normals):
+        assert np.all(nrm @ np.sign(p) > 0.99)
+
+
+def test_visible_vertexes_from_one_sided_scan_with_table_plane() -> None:
+    size = 0.05
+    angle = np.radians(25.0)
+    R = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+    T = make_transform(R, [0.01, -0.02, size / 2])
+    eye = np.array([0.3, 0.25, 0.3])
+    rng = np.random.default_rng(9)
+    pts = synthetic_scan(
+        box_mesh(size),
+        T,
+        eye,
+        [0.01, -0.02, 0.0],
+        width=200,
+        height=150,
+        fov_deg=25,
+        noise_sigma=0.0002,
+        rng=rng,
+    )
+    seg = segment_surfaces(pts, viewpoint=eye)
+    assert len(seg.planes) == 3  # top and two sides
+    table = Plane(np.array([0.0, 0.0, -1.0]), 0.0)  # out of the object, i.e. down
+    without = plane_vertexes(seg.planes, pts, tolerance=5 * seg.spacing)
+    with_table = plane_vertexes(seg.planes, pts, extra_planes=[table], tolerance=5 * seg.spacing)
+    corners = (T @ np.column_stack([CUBE_CORNERS / CUBE * size, np.ones(8)]).T).T[:, :3]
+    # visible: the corner nearest the eye on top, and (with the table) the one below it
+    top = corners[np.argmin(np.linalg.norm(corners - eye, axis=1))]
+    expected = np.stack([top, top - [0.0, 0.0, size]])
+    assert len(without) == 1
+    assert np.linalg.norm(without.points[0] - top) < 0.001
+    assert len(with_table) == 2
+    d = np.linalg.norm(with_table.points[:, None] - expected[None], axis=2)
+    assert d.min(axis=0).max() < 0.001
+
+
+def test_bad_input_raises_clear_errors() -> None:
+    with pytest.raises(DataError, match=r"expected shape \(N, 3\)"):
+        estimate_normals(np.zeros((10, 2)))
+    with pytest.raises(DataError, match="NaN"):
+        segment_surfaces(np.full((10, 3), np.nan))
+    with pytest.raises(DataError, match="at least 4"):
+        fit_sphere(np.zeros((3, 3)))
+    with pytest.raises(DataError, match="sphere"):
+        fit_sphere(np.column_stack([np.random.default_rng(0).uniform(size=(20, 2)), np.zeros(20)]))
+    with pytest.raises(DataError, match="tolerance"):
+        plane_vertexes([], np.zeros((5, 3)), tolerance=0.0)
+    with pytest.raises(DataError, match="seeds"):
+        segment_surfaces(np.random.default_rng(0).uniform(size=(20, 3)), seeds="some")
