@@ -584,7 +584,7 @@ def coarser(*fields: Field) -> Field:
     if not fields:
         raise DataError("coarser(): expected at least one field")
     for f in fields[1:]:
-        _check_mergeable(f, fields[0])
+        _check_mergeable(fields[0], f)
     best = fields[0]
     for f in fields[1:]:
         if _precision_key(f) < _precision_key(best):
@@ -607,7 +607,9 @@ def coerce(values: ArrayLike, source: Field, target: Field) -> NDArray[np.float6
     to ``target.resolution`` (half up) and clipped to the target range, e.g. 0:1023 -> 0:511
     maps 1023 to 511 and 512 to 256 (255.75 rounded). ``requantize``: values keep their
     magnitude and are only quantised to ``target.resolution`` (range checks are left to
-    validation with the target's policy). NaN stays NaN.
+    validation with the target's policy). Values are always quantised to the target's grid,
+    also when ``source == target`` (so every row of a merged stream has the same precision).
+    NaN stays NaN.
 
     Args:
         values: (...,) values in ``source`` units.
@@ -620,8 +622,6 @@ def coerce(values: ArrayLike, source: Field, target: Field) -> NDArray[np.float6
     """
     _check_mergeable(source, target)
     v = np.asarray(values, dtype=np.float64)
-    if source == target:
-        return v.copy()
     if target.coercion == "rescale":
         mapped = target.low + (v - source.low) * (target.span / source.span)
         return np.clip(_quantise(mapped, target), target.low, target.high)
@@ -687,7 +687,7 @@ def merge_streams(
         fields_j = [s.vector[j] for s in streams]
         for s, f in zip(streams[1:], fields_j[1:]):
             try:
-                _check_mergeable(f, fields_j[0])
+                _check_mergeable(fields_j[0], f)
             except DataError as exc:
                 raise DataError(
                     f"merge_streams: {exc} (streams {streams[0].sensor!r} and {s.sensor!r})"
@@ -697,10 +697,7 @@ def merge_streams(
     coerced = [coerce_stream(s, vector) for s in streams]
     data = np.concatenate([s.data for s in coerced], axis=0)
     source = np.concatenate(
-        [
-            s.source if s.source is not None else np.full(len(s), s.sensor, dtype=np.str_)
-            for s in streams
-        ]
+        [s.source if s.source is not None else np.full(len(s), s.sensor) for s in streams]
     ).astype(np.str_)
     old_flags = np.concatenate(
         [s.flags if s.flags is not None else np.zeros(s.data.shape, dtype=bool) for s in streams],
