@@ -53,8 +53,8 @@ XML = """
     </body>
   </worldbody>
   <sensor>
-    <touch name="touch_finger_1_a" site="taxel_a"/>
-    <touch name="touch_finger_1_b" site="taxel_b"/>
+    <touch name="touch_finger_1_0" site="taxel_a"/>
+    <touch name="touch_finger_1_1" site="taxel_b"/>
   </sensor>
 </mujoco>
 """
@@ -312,7 +312,7 @@ def test_touch_pressure_is_force_over_area() -> None:
     for _ in range(600):  # let the 0.1 kg block settle on taxel_a
         mujoco.mj_step(model, data)
     pad = TouchPad(
-        model, data, ["touch_finger_1_a", "touch_finger_1_b"], np.random.default_rng(0),
+        model, data, ["touch_finger_1_0", "touch_finger_1_1"], np.random.default_rng(0),
         name="touch_finger_1", sigma_pa=0.0,
     )  # fmt: skip
     r = pad.read()

@@ -21,6 +21,7 @@ from mks_sim.devices.faults import NO_FAULTS, DeviceFaults, SimDevice
 from mks_sim.devices.range_finder import RangeFinder, ScanPattern
 from mks_sim.devices.touch import TouchPad
 from mks_sim.errors import NotFound, SpecError
+from mks_sim.sim import names as sim_names
 
 logger = logging.getLogger(__name__)
 
@@ -39,6 +40,8 @@ DEFAULT_OPTIONS: dict[str, dict[str, Any]] = {
         "pattern": ScanPattern(n_pan=96, n_tilt=72, pan_deg=30.0, tilt_deg=25.0),
         "max_range_m": 2.0,
         "sigma_m": 0.0005,
+        # Visible geoms and touch pads; never group 3, the invisible collision stand-ins.
+        "geomgroup": (1, 1, 1, 0, 0, 0),
     },
     "touch_finger_1": {},
     "touch_finger_2": {},
@@ -78,37 +81,21 @@ class DeviceSet(dict[str, SimDevice]):
 
 
 def _touch_sensors(model: mujoco.MjModel, device: str) -> list[str]:
-    """Touch sensors of pad ``device``: from ``mks_sim.sim.names`` if it lists them, else
-    every touch sensor whose name starts with the device name."""
-    try:
-        from mks_sim.sim import names as sim_names  # optional: the world's name table
+    """Taxel sensors of pad ``device`` (``touch_finger_<f>``) per ``mks_sim.sim.names``,
+    those present in the model."""
+    finger = int(device.rsplit("_", 1)[1])
+    candidates = sim_names.touch_sensors(finger)
+    return [s for s in candidates if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SENSOR, s) >= 0]
 
-        listed = getattr(sim_names, "TOUCH_SENSORS", None)
-        if isinstance(listed, Mapping) and device in listed:
-            return list(listed[device])
-    except ImportError:
-        pass
+
+def _robot_bodies(model: mujoco.MjModel) -> tuple[str, ...]:
+    """Bodies of the robot (arm and hand): the scanner self-filters their returns."""
     found = []
-    for i in range(model.nsensor):
-        if model.sensor_type[i] == mujoco.mjtSensor.mjSENS_TOUCH:
-            nm = model.sensor(i).name
-            if nm.startswith(device):
-                found.append(nm)
-    return found
-
-
-def _robot_bodies() -> tuple[str, ...]:
-    try:
-        from mks_sim.sim import names as sim_names
-
-        roots = getattr(sim_names, "ROBOT_ROOT_BODIES", None) or getattr(
-            sim_names, "ROBOT_BASE_BODY", None
-        )
-    except ImportError:
-        return ()
-    if roots is None:
-        return ()
-    return (roots,) if isinstance(roots, str) else tuple(roots)
+    for b in range(model.nbody):
+        nm = model.body(b).name
+        if nm.startswith(sim_names.ROBOT_PREFIX):
+            found.append(nm)
+    return tuple(found)
 
 
 def make_devices(
@@ -183,10 +170,10 @@ def _make_one(
         if not mounts:
             logger.info("device range_finder: no mount sites in the model; left out")
             return None
-        opts.setdefault("self_bodies", _robot_bodies())
+        opts.setdefault("self_bodies", _robot_bodies(model))
         return RangeFinder(model, data, mounts, rng, name=name, **opts)
     sensors = _touch_sensors(model, name)
     if not sensors:
-        logger.info("device %s: no touch sensors named %s* in the model; left out", name, name)
+        logger.info("device %s: no taxel sensors in the model; left out", name)
         return None
     return TouchPad(model, data, sensors, rng, name=name, **opts)
