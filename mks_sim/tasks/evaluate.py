@@ -1,0 +1,118 @@
+"""Judging an episode with simulator ground truth (EVALUATION ONLY).
+
+Nothing here may be imported by the controller, the sensors or the matchers: this module
+reads the true object pose (``mks_sim.sim.truth``) and the true geometry to score what the
+sensor-driven loop did.
+
+Success (issue #5): the object's lowest point at least ``MIN_CLEARANCE_M`` (8 cm) above the
+table top during the whole ``HOLD_S`` (1 s) hold that follows the lift.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from mks_sim.geometry.transforms import cube_rotations, pose_error
+
+MIN_CLEARANCE_M = 0.08
+HOLD_S = 1.0
+
+
+def true_object_to_world(world, name: str) -> np.ndarray:
+    """(4, 4) true pose of body ``name`` (ground truth)."""
+    try:
+        from mks_sim.sim import truth
+
+        return np.asarray(truth.object_to_world(world, name), dtype=float)
+    except (ImportError, AttributeError):  # pragma: no cover - before the truth module lands
+        d = world.data
+        T = np.eye(4)
+        T[:3, :3] = d.body(name).xmat.reshape(3, 3)
+        T[:3, 3] = d.body(name).xpos
+        return T
+
+
+def lowest_point_z(model: mujoco.MjModel, data: mujoco.MjData, body: str) -> float:
+    """World z (m) of the lowest point of the body's geoms (every group, collision or not).
+
+    Spheres are exact; other geoms use the 8 corners of their local bounding box (exact for
+    boxes, conservative for meshes).
+    """
+    bid = model.body(body).id
+    zmin = np.inf
+    for g in np.flatnonzero(model.geom_bodyid == bid):
+        pos = data.geom_xpos[g]
+        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE:
+            zmin = min(zmin, pos[2] - model.geom_size[g, 0])
+            continue
+        centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
+        corners = centre + half * np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+        R = data.geom_xmat[g].reshape(3, 3)
+        zmin = min(zmin, float(np.min((corners @ R.T)[:, 2] + pos[2])))
+    return float(zmin)
+
+
+def symmetries_for(object_name: str) -> np.ndarray | None:
+    """Rotations under which the object looks the same (cube: the 24 cube rotations)."""
+    if object_name == "cube":
+        return cube_rotations()
+    return None
+
+
+@dataclass(frozen=True)
+class LocalizationError:
+    """Estimate vs truth.
+
+    Attributes:
+        position_mm: distance between estimated and true origin, millimetres.
+        rotation_deg: smallest rotation between them modulo the object's symmetries,
+            degrees (0 for a sphere, whose orientation is not observable).
+    """
+
+    position_mm: float
+    rotation_deg: float
+
+
+def localization_error(world, object_name: str, estimate: np.ndarray | None) -> LocalizationError:
+    """Compare an estimate with the true pose (nan when there is no estimate)."""
+    if estimate is None:
+        return LocalizationError(float("nan"), float("nan"))
+    truth_T = true_object_to_world(world, object_name)
+    if object_name == "sphere":
+        pos = float(np.linalg.norm(np.asarray(estimate)[:3, 3] - truth_T[:3, 3]))
+        return LocalizationError(pos * 1000.0, 0.0)
+    pos, rot = pose_error(estimate, truth_T, symmetries=symmetries_for(object_name))
+    return LocalizationError(float(pos) * 1000.0, float(rot))
+
+
+class HoldMonitor:
+    """Samples the object's clearance above the table during the hold (ground truth).
+
+    Args:
+        world: the world (``.model``, ``.data``).
+        object_name: body to watch.
+        table_z: table-top height, metres.
+    """
+
+    def __init__(self, world, object_name: str, table_z: float) -> None:
+        self.world = world
+        self.object_name = object_name
+        self.table_z = table_z
+        self.samples: list[float] = []
+
+    def sample(self) -> None:
+        """Record the current clearance (m)."""
+        z = lowest_point_z(self.world.model, self.world.data, self.object_name)
+        self.samples.append(z - self.table_z)
+
+    @property
+    def min_clearance_m(self) -> float:
+        """Smallest clearance seen (nan before any sample)."""
+        return float(min(self.samples)) if self.samples else float("nan")
+
+    def success(self) -> bool:
+        """True when every sample of the hold cleared ``MIN_CLEARANCE_M``."""
+        return bool(self.samples) and self.min_clearance_m >= MIN_CLEARANCE_M
