@@ -1,0 +1,402 @@
+"""Refinement and verification of pose hypotheses: point-to-plane ICP, scoring, symmetry.
+
+A Hough matcher (section 2.2) reports every candidate transformation; "any of the maxima may be
+chosen" when the model is symmetric. Here each candidate is refined by point-to-plane ICP of the
+model surface (sampled points with normals) to the scene segment, scored by the fraction of
+scene points it explains and its residual, ranked, and hypotheses that differ only by a symmetry
+of the model (the cube's 24 rotations) are recognised as one and reported once, with the
+equivalents listed.
+
+Correspondences run scene -> model (each scene point to its nearest model point), so a partial,
+one-sided scan is matched against the whole model without visibility reasoning.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from mks_sim.errors import DataError
+from mks_sim.geometry.transforms import invert, rotation_angle_deg
+from mks_sim.models.pose import PoseHypothesis
+
+__all__ = [
+    "IcpResult",
+    "ModelSurface",
+    "VerifiedHypothesis",
+    "detect_symmetries",
+    "group_equivalent",
+    "icp_point_to_plane",
+    "score_pose",
+    "verify_hypotheses",
+]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class ModelSurface:
+    """A model surface for ICP: points, outward normals and their k-d tree (model frame).
+
+    Build with :meth:`from_arrays`.
+    """
+
+    points: FloatArray
+    normals: FloatArray
+    tree: cKDTree
+    spacing: float  # median nearest-neighbour distance of the points (sampling spacing)
+
+    @classmethod
+    def from_arrays(cls, points: ArrayLike, normals: ArrayLike) -> ModelSurface:
+        """Validate (M, 3) points and (M, 3) normals and build the tree."""
+        p = np.asarray(points, dtype=np.float64)
+        n = np.asarray(normals, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3 or p.shape != n.shape or len(p) < 3:
+            raise DataError(
+                f"ModelSurface: expected (M >= 3, 3) points and normals of the same shape, "
+                f"got {p.shape} and {n.shape}"
+            )
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(n))):
+            raise DataError("ModelSurface: points or normals contain NaN/inf")
+        n = n / np.clip(np.linalg.norm(n, axis=1, keepdims=True), 1e-12, None)
+        tree = cKDTree(p)
+        d, _ = tree.query(p[:: max(1, len(p) // 500)], k=2)
+        return cls(p, n, tree, float(np.median(d[:, 1])))
+
+    @property
+    def size(self) -> float:
+        """Diagonal of the bounding box (the object's size, points' units)."""
+        return float(np.linalg.norm(np.ptp(self.points, axis=0)))
+
+
+@dataclass(frozen=True, eq=False)
+class IcpResult:
+    """Result of :func:`icp_point_to_plane`.
+
+    Attributes:
+        matrix: (4, 4) refined model -> scene transform (column convention).
+        rmse: RMS point-to-plane residual of the kept correspondences.
+        iterations: iterations run.
+        converged: the last update was below the tolerance.
+    """
+
+    matrix: FloatArray
+    rmse: float
+    iterations: int
+    converged: bool
+
+
+@dataclass(frozen=True, eq=False)
+class VerifiedHypothesis:
+    """A refined, scored hypothesis and its symmetric equivalents.
+
+    Attributes:
+        hypothesis: the refined hypothesis (``matrix``, ``rmse``, ``score`` filled).
+        inlier_fraction: fraction of scene points within the inlier distance of the model.
+        equivalents: (E, 4, 4) other refined poses that are the same placement up to a
+            symmetry of the model (empty if none were proposed).
+    """
+
+    hypothesis: PoseHypothesis
+    inlier_fraction: float
+    equivalents: FloatArray
+
+
+def _rodrigues(omega: FloatArray) -> FloatArray:
+    return Rotation.from_rotvec(omega).as_matrix()
+
+
+def icp_point_to_plane(
+    surface: ModelSurface,
+    scene_points: ArrayLike,
+    initial: ArrayLike,
+    *,
+    max_distance: float,
+    trim: float = 0.9,
+    max_iterations: int = 30,
+    tolerance: float = 1e-6,
+) -> IcpResult:
+    """Point-to-plane ICP of a model surface to scene points (scene -> model correspondences).
+
+    Each iteration matches every scene point (in the model frame) to its nearest model point,
+    drops pairs farther than ``max_distance`` and the worst ``1 - trim`` of the rest, and
+    solves the linearised point-to-plane problem for a small rotation and translation.
+
+    Args:
+        surface: the model surface.
+        scene_points: (N, 3) scene points (one segment).
+        initial: (4, 4) initial model -> scene transform.
+        max_distance: correspondence gate (points' units).
+        trim: fraction of gated pairs kept (the closest).
+        max_iterations: iteration cap.
+        tolerance: stop when the update (rotation radians + translation / model size) is below.
+
+    Returns:
+        :class:`IcpResult`.
+    """
+    scene = np.asarray(scene_points, dtype=np.float64)
+    if scene.ndim != 2 or scene.shape[1] != 3 or len(scene) < 6:
+        raise DataError(f"icp_point_to_plane: expected (N >= 6, 3) scene points, got {scene.shape}")
+    T = np.asarray(initial, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise DataError(f"icp_point_to_plane: expected (4, 4) initial transform, got {T.shape}")
+    scene_to_model = invert(T)
+    size = max(surface.size, 1e-12)
+    rmse, converged, it = np.inf, False, 0
+    for it in range(1, max_iterations + 1):  # noqa: B007 - reported
+        p = scene @ scene_to_model[:3, :3].T + scene_to_model[:3, 3]  # (N, 3) model frame
+        dist, j = surface.tree.query(p, distance_upper_bound=max_distance)
+        ok = np.isfinite(dist)
+        if ok.sum() < 6:
+            break
+        keep = np.flatnonzero(ok)
+        if trim < 1.0:
+            cut = np.quantile(dist[keep], trim)
+            keep = keep[dist[keep] <= cut]
+        p, q, n = p[keep], surface.points[j[keep]], surface.normals[j[keep]]
+        r = np.einsum("ij,ij->i", p - q, n)  # (K,)
+        A = np.hstack([np.cross(p, n), n])  # (K, 6)
+        H = A.T @ A + 1e-9 * np.eye(6)
+        x = np.linalg.solve(H, -A.T @ r)
+        rmse = float(np.sqrt(np.mean(r**2)))
+        dT = np.eye(4)
+        dT[:3, :3] = _rodrigues(x[:3])
+        dT[:3, 3] = x[3:]
+        scene_to_model = dT @ scene_to_model
+        if np.linalg.norm(x[:3]) + np.linalg.norm(x[3:]) / size < tolerance:
+            converged = True
+            break
+    return IcpResult(invert(scene_to_model), rmse, it, converged)
+
+
+def score_pose(
+    surface: ModelSurface,
+    scene_points: ArrayLike,
+    matrix: ArrayLike,
+    inlier_distance: float,
+) -> tuple[float, float, float]:
+    """Score a pose by how well the model explains the scene points.
+
+    Args:
+        surface: the model surface.
+        scene_points: (N, 3) scene segment.
+        matrix: (4, 4) model -> scene.
+        inlier_distance: a scene point is explained when its point-to-plane distance to its
+            nearest model point is within this and that point is within this plus the
+            model's sampling spacing (points' units).
+
+    Returns:
+        ``(score, inlier_fraction, rmse)``: ``score = inlier_fraction * exp(-(rmse / d)^2 / 2)``
+        with ``d`` the inlier distance and ``rmse`` the RMS point-to-plane residual of the
+        inliers (so among equally explaining poses the tighter one wins).
+    """
+    scene = np.asarray(scene_points, dtype=np.float64)
+    p = scene @ invert(matrix)[:3, :3].T + invert(matrix)[:3, 3]
+    dist, j = surface.tree.query(p, distance_upper_bound=inlier_distance + surface.spacing)
+    ok = np.isfinite(dist)
+    r_all = np.zeros(len(p))
+    r_all[ok] = np.einsum("ij,ij->i", p[ok] - surface.points[j[ok]], surface.normals[j[ok]])
+    ok &= np.abs(r_all) <= inlier_distance
+    frac = float(ok.mean()) if len(ok) else 0.0
+    if not ok.any():
+        return 0.0, 0.0, float("inf")
+    r = r_all[ok]
+    rmse = float(np.sqrt(np.mean(r**2)))
+    return frac * float(np.exp(-0.5 * (rmse / inlier_distance) ** 2)), frac, rmse
+
+
+def _same_pose(
+    A: FloatArray,
+    B: FloatArray,
+    symmetries: FloatArray,
+    rotation_tol_deg: float,
+    translation_tol: float,
+) -> bool:
+    if np.linalg.norm(A[:3, 3] - B[:3, 3]) > translation_tol:
+        return False
+    # A = B @ S (S about the model origin): R_A = R_B S.
+    rel = B[:3, :3].T @ A[:3, :3]
+    return any(rotation_angle_deg(rel, S) <= rotation_tol_deg for S in symmetries)
+
+
+def _with_identity(symmetries: ArrayLike | None) -> FloatArray:
+    syms = np.eye(3)[None]
+    if symmetries is not None:
+        s = np.asarray(symmetries, dtype=np.float64)
+        if s.ndim != 3 or s.shape[1:] != (3, 3):
+            raise DataError(f"expected (S, 3, 3) symmetries, got {s.shape}")
+        syms = np.concatenate([syms, s])
+    return syms
+
+
+def _matching_symmetry(A: FloatArray, B: FloatArray, syms: FloatArray) -> FloatArray:
+    """The symmetry S with R_A ~ R_B S."""
+    rel = B[:3, :3].T @ A[:3, :3]
+    return syms[int(np.argmin([rotation_angle_deg(rel, S) for S in syms]))]
+
+
+def _symmetric_images(T: FloatArray, related: list[FloatArray]) -> FloatArray:
+    """Distinct poses T @ S for the non-identity S in ``related`` (the equivalents)."""
+    out: list[FloatArray] = []
+    for S in related:
+        if rotation_angle_deg(S, np.eye(3)) < 1e-3:
+            continue
+        if any(rotation_angle_deg(S, o) < 1e-3 for o in out):
+            continue
+        out.append(S)
+    images = np.repeat(T[None], len(out), axis=0)
+    if out:
+        images[:, :3, :3] = T[:3, :3] @ np.array(out)
+    return images.reshape(-1, 4, 4)
+
+
+def group_equivalent(
+    matrices: Sequence[ArrayLike],
+    symmetries: ArrayLike | None = None,
+    *,
+    rotation_tol_deg: float = 5.0,
+    translation_tol: float,
+) -> NDArray[np.intp]:
+    """Label poses that are the same placement up to a model symmetry.
+
+    Args:
+        matrices: H (4, 4) model -> scene poses, best first.
+        symmetries: (S, 3, 3) rotations about the model origin mapping the model onto itself
+            (identity implied).
+        rotation_tol_deg: angular tolerance.
+        translation_tol: distance tolerance of the model origin (points' units).
+
+    Returns:
+        (H,) int label = index of the first (best) pose of its group.
+    """
+    syms = _with_identity(symmetries)
+    mats = [np.asarray(m, dtype=np.float64) for m in matrices]
+    labels = np.arange(len(mats))
+    reps: list[int] = []
+    for i, M in enumerate(mats):
+        for r in reps:
+            if _same_pose(M, mats[r], syms, rotation_tol_deg, translation_tol):
+                labels[i] = r
+                break
+        else:
+            reps.append(i)
+    return labels
+
+
+def detect_symmetries(
+    points: ArrayLike,
+    candidates: ArrayLike,
+    tolerance: float,
+) -> FloatArray:
+    """The candidate rotations (about the origin) that map a point set onto itself.
+
+    Args:
+        points: (V, 3) characteristic points of a model (e.g. its vertexes).
+        candidates: (C, 3, 3) rotations to test (e.g. ``cube_rotations()``).
+        tolerance: every rotated point must lie within this distance of a point.
+
+    Returns:
+        (S, 3, 3) the candidates that are symmetries, the identity excluded.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    cands = np.asarray(candidates, dtype=np.float64)
+    tree = cKDTree(pts)
+    out = [
+        R
+        for R in cands
+        if rotation_angle_deg(R, np.eye(3)) > 1e-6
+        and float(tree.query(pts @ R.T)[0].max()) <= tolerance
+    ]
+    return np.array(out).reshape(-1, 3, 3)
+
+
+def verify_hypotheses(
+    hypotheses: Sequence[PoseHypothesis],
+    surface: ModelSurface,
+    scene_points: ArrayLike,
+    *,
+    inlier_distance: float,
+    icp_distance: float | None = None,
+    symmetries: ArrayLike | None = None,
+    max_icp: int = 20,
+    icp_iterations: int = 30,
+    max_scene_points: int = 3000,
+    rng: np.random.Generator | None = None,
+) -> list[VerifiedHypothesis]:
+    """Refine (ICP), score and rank hypotheses; report symmetric equivalents once.
+
+    Args:
+        hypotheses: candidates from a matcher, any order.
+        surface: the model surface.
+        scene_points: (N, 3) the scene segment the hypotheses refer to.
+        inlier_distance: scoring inlier distance (e.g. 2-3 x the sampling spacing).
+        icp_distance: ICP correspondence gate; default 4 x ``inlier_distance``.
+        symmetries: (S, 3, 3) model symmetries for grouping.
+        max_icp: refine at most this many initial poses (the most voted, after merging
+            initial poses that are already equivalent).
+        icp_iterations: ICP iteration cap.
+        max_scene_points: ICP and scoring use a random subset of at most this many points.
+        rng: generator for that subset (default seeded 0).
+
+    Returns:
+        One :class:`VerifiedHypothesis` per distinct placement, best score first.
+    """
+    scene = np.asarray(scene_points, dtype=np.float64)
+    if scene.ndim != 2 or scene.shape[1] != 3:
+        raise DataError(f"verify_hypotheses: expected (N, 3) scene points, got {scene.shape}")
+    if not hypotheses or len(scene) < 6:
+        return []
+    rng = np.random.default_rng(0) if rng is None else rng
+    if len(scene) > max_scene_points:
+        scene = scene[rng.choice(len(scene), max_scene_points, replace=False)]
+    gate = 4.0 * inlier_distance if icp_distance is None else icp_distance
+    size = surface.size
+    syms = _with_identity(symmetries)
+    # Merge initial poses that are the same placement up to a symmetry, keeping the most
+    # voted; remember which symmetry relates each merged pose to its representative.
+    ordered = sorted(hypotheses, key=lambda h: -h.votes)
+    init_labels = group_equivalent(
+        [h.matrix for h in ordered], symmetries, rotation_tol_deg=8.0, translation_tol=0.05 * size
+    )
+    start_ids = [i for i in range(len(ordered)) if init_labels[i] == i][:max_icp]
+    refined: list[tuple[PoseHypothesis, float, list[FloatArray]]] = []
+    for i in start_ids:
+        h = ordered[i]
+        icp = icp_point_to_plane(
+            surface, scene, h.matrix, max_distance=gate, max_iterations=icp_iterations
+        )
+        score, frac, rmse = score_pose(surface, scene, icp.matrix, inlier_distance)
+        related = [
+            _matching_symmetry(ordered[k].matrix, h.matrix, syms)
+            for k in range(len(ordered))
+            if init_labels[k] == i and k != i
+        ]
+        refined.append((replace(h, matrix=icp.matrix, rmse=rmse, score=score), frac, related))
+    refined.sort(key=lambda hf: (-hf[0].score, hf[0].rmse))
+    labels = group_equivalent(
+        [h.matrix for h, _, _ in refined],
+        symmetries,
+        rotation_tol_deg=3.0,
+        translation_tol=max(inlier_distance, 0.01 * size),
+    )
+    out: list[VerifiedHypothesis] = []
+    for i, (h, frac, related) in enumerate(refined):
+        if labels[i] != i:
+            continue
+        for k in range(len(refined)):
+            if labels[k] == i and k != i:
+                related = related + [_matching_symmetry(refined[k][0].matrix, h.matrix, syms)]
+                related = related + refined[k][2]
+        eq = _symmetric_images(h.matrix, related)
+        out.append(VerifiedHypothesis(h, frac, eq))
+    log.debug(
+        "verify_hypotheses: %d in, %d refined, %d distinct", len(hypotheses), len(refined), len(out)
+    )
+    return out

@@ -1,0 +1,128 @@
+"""ICP refinement, scoring, symmetric-equivalent grouping (mks_sim.models.refine)."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from mks_sim.errors import DataError
+from mks_sim.geometry.meshes import box_mesh, industrial_part_mesh, sample_surface
+from mks_sim.geometry.transforms import (
+    apply,
+    cube_rotations,
+    make_transform,
+    pose_error,
+    random_rotation,
+)
+from mks_sim.models.pose import PoseHypothesis
+from mks_sim.models.refine import (
+    ModelSurface,
+    detect_symmetries,
+    group_equivalent,
+    icp_point_to_plane,
+    score_pose,
+    verify_hypotheses,
+)
+
+
+def _perturb(T: np.ndarray, deg: float, shift: float, rng: np.random.Generator) -> np.ndarray:
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    from scipy.spatial.transform import Rotation
+
+    dR = Rotation.from_rotvec(np.radians(deg) * axis).as_matrix()
+    d = rng.normal(size=3)
+    return make_transform(dR @ T[:3, :3], T[:3, 3] + shift * d / np.linalg.norm(d))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_icp_converges_to_ground_truth_on_industrial_part(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    mesh = industrial_part_mesh()
+    surface = ModelSurface.from_arrays(*sample_surface(mesh, 4000, rng=rng))
+    T_true = make_transform(random_rotation(rng), rng.uniform(-0.2, 0.2, 3))
+    scene_model, _ = sample_surface(mesh, 2000, rng=rng)
+    # one-sided: keep what faces +z in the model frame, then place it
+    scene = apply(T_true, scene_model[scene_model[:, 2] > 0.004])
+    scene += rng.normal(0, 0.0003, scene.shape)
+    start = _perturb(T_true, 10.0, 0.006, rng)
+    res = icp_point_to_plane(surface, scene, start, max_distance=0.02)
+    pos, rot = pose_error(res.matrix, T_true)
+    assert rot < 0.5 and pos < 0.001
+    assert res.rmse < 0.001
+    before = pose_error(start, T_true)
+    assert before[1] > 5.0  # it really moved
+
+
+def test_score_prefers_true_pose_and_reports_inliers() -> None:
+    rng = np.random.default_rng(3)
+    mesh = box_mesh(0.05)
+    surface = ModelSurface.from_arrays(*sample_surface(mesh, 3000, rng=rng))
+    T = make_transform(random_rotation(rng), [0.1, 0.0, 0.3])
+    scene = apply(T, sample_surface(mesh, 1000, rng=rng)[0])
+    score, frac, rmse = score_pose(surface, scene, T, 0.002)
+    assert frac > 0.99 and rmse < 0.001 and score > 0.9
+    off = T.copy()
+    off[:3, 3] += [0.01, 0, 0]
+    s2, f2, _ = score_pose(surface, scene, off, 0.002)
+    assert s2 < score and f2 < 0.8
+
+
+def test_cube_vertex_symmetries_are_the_24_rotations() -> None:
+    corners = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))
+    syms = detect_symmetries(corners, cube_rotations(), 1e-6)
+    assert len(syms) == 23  # identity excluded
+    box = np.array(list(itertools.product((-1.0, 1.0), (-2.0, 2.0), (-3.0, 3.0))))
+    assert len(detect_symmetries(box, cube_rotations(), 1e-6)) == 3  # the 180-degree turns
+
+
+def test_group_equivalent_recognises_cube_symmetries() -> None:
+    rng = np.random.default_rng(4)
+    T = make_transform(random_rotation(rng), [1.0, 2.0, 3.0])
+    rots = cube_rotations()
+    mats = [make_transform(T[:3, :3] @ S, T[:3, 3]) for S in rots]
+    other = make_transform(T[:3, :3], [1.5, 2.0, 3.0])
+    labels = group_equivalent(mats + [other], rots, translation_tol=0.01)
+    assert len(set(labels[:24])) == 1 and labels[24] == 24
+    labels = group_equivalent(mats, None, translation_tol=0.01)
+    assert len(set(labels)) == 24  # without symmetries they are distinct
+
+
+def test_verify_ranks_true_pose_first_and_lists_equivalents() -> None:
+    rng = np.random.default_rng(5)
+    mesh = box_mesh(0.05)
+    surface = ModelSurface.from_arrays(*sample_surface(mesh, 3000, rng=rng))
+    T_true = make_transform(random_rotation(rng), [0.0, 0.1, 0.4])
+    scene = apply(T_true, sample_surface(mesh, 1500, rng=rng)[0])
+    rots = cube_rotations()
+    hyps = [
+        PoseHypothesis(
+            _perturb(T_true @ make_transform(S, [0, 0, 0]), 4.0, 0.002, rng), [0, 0, 0], 8
+        )
+        for S in rots[:6]
+    ]
+    wrong = make_transform(random_rotation(rng), [0.03, 0.12, 0.4])
+    hyps.append(PoseHypothesis(wrong, [0, 0, 0], votes=9))
+    out = verify_hypotheses(hyps, surface, scene, inlier_distance=0.002, symmetries=rots)
+    best = out[0]
+    pos, rot = pose_error(best.hypothesis.matrix, T_true, rots)
+    assert rot < 0.5 and pos < 0.0005
+    assert best.inlier_fraction > 0.99
+    assert len(best.equivalents) == 5
+    for E in best.equivalents:
+        assert pose_error(E, T_true, rots)[1] < 0.5
+    assert all(v.hypothesis.score < best.hypothesis.score for v in out[1:])
+
+
+def test_bad_inputs() -> None:
+    with pytest.raises(DataError, match="same shape"):
+        ModelSurface.from_arrays(np.zeros((5, 3)), np.zeros((4, 3)))
+    surface = ModelSurface.from_arrays(np.eye(3), np.eye(3))
+    with pytest.raises(DataError, match="scene points"):
+        icp_point_to_plane(surface, np.zeros((3, 3)), np.eye(4), max_distance=1.0)
+    with pytest.raises(DataError, match="initial transform"):
+        icp_point_to_plane(surface, np.zeros((10, 3)), np.eye(3), max_distance=1.0)
+    with pytest.raises(DataError, match=r"\(S, 3, 3\)"):
+        group_equivalent([np.eye(4)], np.eye(3), translation_tol=1.0)
