@@ -1,17 +1,160 @@
-"""`mks-sim sensors` (under construction: its owner replaces this module)."""
+"""`mks-sim sensors`: list the logical sensors, or check one sensor file.
+
+``mks-sim sensors`` lists every logical sensor of the installed ``sensors/`` folder (or
+``--dir``) with its inputs, program, characteristic output vector and ordered alternates, and
+the declared devices; ``--json`` prints the same as JSON. ``mks-sim sensors --check FILE``
+loads FILE together with the installed devices and sensors (so that its inputs resolve; an
+installed file with the same file name is replaced by FILE) and prints ``ok`` (exit 0) or the
+error naming file, sensor and field (exit 2).
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+from pathlib import Path
+from typing import Any
 
 from mks_sim.errors import MksError
+from mks_sim.resources import data_dir
+from mks_sim.sensing import SensorGraph, SensorSpec, load_file, program_names
 
-HELP = "(not built yet)"
+HELP = "list the logical sensors (inputs, program, output vector, alternates) or check a file"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    del parser
+    parser.add_argument(
+        "names", nargs="*", metavar="SENSOR", help="show only these sensors (default: all)"
+    )
+    parser.add_argument("--json", action="store_true", help="print JSON instead of text")
+    parser.add_argument(
+        "--check",
+        metavar="FILE",
+        type=Path,
+        help="validate one sensor file against the installed devices and sensors",
+    )
+    parser.add_argument(
+        "--dir",
+        metavar="DIR",
+        type=Path,
+        default=None,
+        help="sensors folder (default: the installed sensors/)",
+    )
+
+
+def _params(params: Any) -> str:
+    if not params:
+        return ""
+    return " {" + ", ".join(f"{k} = {_plain(v)!r}" for k, v in params.items()) + "}"
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, tuple):
+        return [_plain(v) for v in value]
+    if hasattr(value, "items"):
+        return {k: _plain(v) for k, v in value.items()}
+    return value
+
+
+def _format_sensor(spec: SensorSpec) -> list[str]:
+    lines = [f"{spec.name}  ({spec.file or 'code'})"]
+    if spec.description:
+        lines.append(f"  {spec.description}")
+    lines.append(f"  inputs:     {', '.join(spec.inputs) or '(none)'}")
+    lines.append(f"  program:    {spec.program}{_params(spec.params)}")
+    lines.append("  output:")
+    rows = [
+        (
+            f"[{i}]",
+            f.name,
+            f"{f.low:g}:{f.high:g}",
+            f.unit or "-",
+            f.policy,
+            "" if f.resolution is None else f"step {f.resolution:g}",
+        )
+        for i, f in enumerate(spec.output)
+    ]
+    widths = [max(len(r[c]) for r in rows) for c in range(6)]
+    for row in rows:
+        lines.append("    " + "  ".join(v.ljust(w) for v, w in zip(row, widths)).rstrip())
+    if spec.acceptance is not None:
+        acc = spec.acceptance
+        lines.append(f"  acceptance: {acc.test}{_params(acc.params)}")
+    if spec.alternates:
+        lines.append("  alternates (in order):")
+        for k, alt in enumerate(spec.alternates, start=1):
+            acc_text = ""
+            if alt.acceptance is not None:
+                acc_text = f"; acceptance {alt.acceptance.test}{_params(alt.acceptance.params)}"
+            lines.append(
+                f"    {k}. {alt.name}: {', '.join(alt.inputs)} -> "
+                f"{alt.program}{_params(alt.params)}{acc_text}"
+            )
+    return lines
+
+
+def _list(args: argparse.Namespace) -> int:
+    graph = SensorGraph.from_dir(args.dir)
+    specs = [graph.sensor(n) for n in args.names] if args.names else list(graph)
+    if args.json:
+        doc = {
+            "sensors": [s.to_dict() for s in specs],
+            "devices": [d.to_dict() for d in graph.devices.values()],
+            "programs": program_names(),
+        }
+        print(json.dumps(doc, indent=2))
+        return 0
+    blocks = ["\n".join(_format_sensor(s)) for s in specs]
+    if not specs:
+        blocks.append("no logical sensors defined")
+    devices = ", ".join(
+        f"{d.name} ({d.kind})" if d.kind else d.name for d in graph.devices.values()
+    )
+    blocks.append(f"devices: {devices or '(none)'}")
+    print("\n\n".join(blocks))
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    target: Path = args.check
+    folder = data_dir("sensors") if args.dir is None else args.dir
+    try:
+        loaded = load_file(target)  # its own errors first, with its own name
+        others = [
+            p
+            for p in sorted(folder.glob("*.toml"))
+            if p.name != target.name and p.resolve() != target.resolve()
+        ]
+        graph = SensorGraph.from_files([*others, target])
+    except MksError as exc:
+        if args.json:
+            print(json.dumps({"ok": False, "file": str(target), "error": str(exc)}))
+            return 2
+        raise
+    names = [s.name for s in loaded.sensors]
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "ok": True,
+                    "file": str(target),
+                    "sensors": names,
+                    "devices": [d.name for d in loaded.devices],
+                    "graph_sensors": len(graph),
+                }
+            )
+        )
+        return 0
+    print(
+        f"ok: {target}: {len(names)} sensor(s)"
+        + (f" ({', '.join(names)})" if names else "")
+        + f", {len(loaded.devices)} device(s); checked with {len(graph)} sensor(s) and "
+        f"{len(graph.device_names)} device(s) from {folder}"
+    )
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
-    raise MksError("`mks-sim sensors` is not built yet")
+    if args.check is not None:
+        return _check(args)
+    return _list(args)
