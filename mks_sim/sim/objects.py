@@ -85,14 +85,16 @@ def random_dot_material(
         width=size,
         height=size,
     )
-    kwargs = {}
+    kwargs: dict[str, object] = {}
     if texrepeat is not None:
         kwargs["texrepeat"] = texrepeat
         kwargs["texuniform"] = True
     return root.asset.add("material", name=name, texture=tex, specular=0.1, **kwargs)
 
 
-def _object_body(root: mjcf.RootElement, name: str, pos: tuple[float, float, float]) -> mjcf.Element:
+def _object_body(
+    root: mjcf.RootElement, name: str, pos: tuple[float, float, float]
+) -> mjcf.Element:
     body = root.worldbody.add("body", name=name, pos=pos)
     body.add("freejoint", name=names.free_joint(name))
     return body
@@ -137,8 +139,11 @@ def add_sphere(root: mjcf.RootElement, pos: tuple[float, float, float]) -> Objec
 def add_clutter(root: mjcf.RootElement, index: int, pos: tuple[float, float, float]) -> ObjectSpec:
     """Simple 3-D clutter of scene 2: 0 = cylinder, 1 = flat block, 2 = tall block."""
     name = names.CLUTTER[index]
-    colours = [((0.2, 0.6, 0.25), (0.9, 1.0, 0.8)), ((0.8, 0.7, 0.2), (0.3, 0.2, 0.1)),
-               ((0.5, 0.3, 0.6), (1.0, 0.9, 1.0))]  # fmt: skip
+    colours = [
+        ((0.2, 0.6, 0.25), (0.9, 1.0, 0.8)),
+        ((0.8, 0.7, 0.2), (0.3, 0.2, 0.1)),
+        ((0.5, 0.3, 0.6), (1.0, 0.9, 1.0)),
+    ]
     rgb, dots = colours[index]
     mat = random_dot_material(root, f"{name}_mat", rgb, dots, size=64)
     body = _object_body(root, name, pos)

@@ -101,26 +101,59 @@ def _workstation(model_name: str) -> tuple[mjcf.RootElement, Robot]:
     root.statistic.center = (0.0, 0.1, names.TABLE_TOP_Z)
     root.statistic.extent = 1.5
 
-    root.asset.add("texture", name="floor_tex", type="2d", builtin="checker", rgb1=(0.3, 0.3, 0.32),
-                   rgb2=(0.25, 0.25, 0.27), width=64, height=64)  # fmt: skip
+    root.asset.add(
+        "texture",
+        name="floor_tex",
+        type="2d",
+        builtin="checker",
+        rgb1=(0.3, 0.3, 0.32),
+        rgb2=(0.25, 0.25, 0.27),
+        width=64,
+        height=64,
+    )
     floor_mat = root.asset.add("material", name="floor_mat", texture="floor_tex", texrepeat=(8, 8))
     root.worldbody.add("geom", name="floor", type="plane", size=(3, 3, 0.1), material=floor_mat)
-    root.worldbody.add("light", name="key_light", pos=(0.3, -0.6, 2.2), dir=(-0.15, 0.35, -1),
-                       directional=True, castshadow=False, diffuse=(0.6, 0.6, 0.6))  # fmt: skip
+    root.worldbody.add(
+        "light",
+        name="key_light",
+        pos=(0.3, -0.6, 2.2),
+        dir=(-0.15, 0.35, -1),
+        directional=True,
+        castshadow=False,
+        diffuse=(0.6, 0.6, 0.6),
+    )
 
     table_mat = objects.random_dot_material(
-        root, "table_mat", (0.62, 0.55, 0.45), (0.35, 0.28, 0.2), density=0.3, kind="2d",
-        size=256, texrepeat=(4, 6),
-    )  # fmt: skip
+        root,
+        "table_mat",
+        (0.62, 0.55, 0.45),
+        (0.35, 0.28, 0.2),
+        density=0.3,
+        kind="2d",
+        size=256,
+        texrepeat=(4, 6),
+    )
     table = root.worldbody.add("body", name=names.TABLE, pos=(*TABLE_CENTER_XY, 0.0))
     top_z = names.TABLE_TOP_Z - TABLE_HALF[2]
-    table.add("geom", name=names.TABLE_TOP_GEOM, type="box", size=TABLE_HALF,
-              pos=(0, 0, top_z), material=table_mat, friction=objects.OBJECT_FRICTION)  # fmt: skip
+    table.add(
+        "geom",
+        name=names.TABLE_TOP_GEOM,
+        type="box",
+        size=TABLE_HALF,
+        pos=(0, 0, top_z),
+        material=table_mat,
+        friction=objects.OBJECT_FRICTION,
+    )
     leg_h = (names.TABLE_TOP_Z - 2 * TABLE_HALF[2]) / 2
     for i, (sx, sy) in enumerate(((1, 1), (1, -1), (-1, 1), (-1, -1))):
-        table.add("geom", name=f"table_leg_{i}", type="box", size=(0.03, 0.03, leg_h),
-                  pos=(sx * (TABLE_HALF[0] - 0.05), sy * (TABLE_HALF[1] - 0.05), leg_h),
-                  rgba=(0.3, 0.3, 0.3, 1))  # fmt: skip
+        table.add(
+            "geom",
+            name=f"table_leg_{i}",
+            type="box",
+            size=(0.03, 0.03, leg_h),
+            pos=(sx * (TABLE_HALF[0] - 0.05), sy * (TABLE_HALF[1] - 0.05), leg_h),
+            rgba=(0.3, 0.3, 0.3, 1),
+        )
 
     centre = np.array([*names.OBJECT_REGION_CENTER_XY, names.TABLE_TOP_Z])
     root.worldbody.add("site", name=names.OBJECT_REGION, pos=centre, size=(0.005,), group=4)
@@ -131,8 +164,13 @@ def _workstation(model_name: str) -> tuple[mjcf.RootElement, Robot]:
 
 def _add_sensor_mounts(root: mjcf.RootElement, centre: np.ndarray) -> None:
     # Overhead: 0.8 m above the table, fovy 32 deg covers ~0.61 x 0.46 m (the scene-1 tray).
-    root.worldbody.add("camera", name=names.OVERHEAD_CAMERA, pos=centre + (0, 0, 0.8), fovy=32,
-                       xyaxes=(1, 0, 0, 0, 1, 0))  # fmt: skip
+    root.worldbody.add(
+        "camera",
+        name=names.OVERHEAD_CAMERA,
+        pos=centre + (0, 0, 0.8),
+        fovy=32,
+        xyaxes=(1, 0, 0, 0, 1, 0),
+    )
     # Stereo pair in front of the table, 45 cm from the region, looking down ~40 deg.
     # Both cameras share one orientation (parallel axes: rectified by construction).
     target = centre + (0, 0, 0.03)
@@ -141,19 +179,30 @@ def _add_sensor_mounts(root: mjcf.RootElement, centre: np.ndarray) -> None:
     x_axis = np.array(xyaxes[:3])
     half_b = names.STEREO_BASELINE_M / 2
     for cam, sign in ((names.STEREO_LEFT, -1), (names.STEREO_RIGHT, 1)):
-        root.worldbody.add("camera", name=cam, pos=eye_mid + sign * half_b * x_axis, fovy=45,
-                           xyaxes=xyaxes)  # fmt: skip
+        root.worldbody.add(
+            "camera", name=cam, pos=eye_mid + sign * half_b * x_axis, fovy=45, xyaxes=xyaxes
+        )
     eye = centre + (0.42, -0.30, 0.40)
-    root.worldbody.add("camera", name=names.DEPTH_CAMERA, pos=eye, fovy=45,
-                       xyaxes=look_at_xyaxes(eye, target))  # fmt: skip
+    root.worldbody.add(
+        "camera", name=names.DEPTH_CAMERA, pos=eye, fovy=45, xyaxes=look_at_xyaxes(eye, target)
+    )
     mounts = (centre + (0.38, -0.28, 0.32), centre + (-0.38, -0.28, 0.32))
     for name, eye in zip(names.RANGE_FINDER_MOUNTS, mounts, strict=True):
-        root.worldbody.add("site", name=name, pos=eye, quat=boresight_quat(eye, target),
-                           type="box", size=(0.02, 0.015, 0.01), rgba=(0.2, 0.2, 0.25, 1),
-                           group=4)  # fmt: skip
+        root.worldbody.add(
+            "site",
+            name=name,
+            pos=eye,
+            quat=boresight_quat(eye, target),
+            type="box",
+            size=(0.02, 0.015, 0.01),
+            rgba=(0.2, 0.2, 0.25, 1),
+            group=4,
+        )
 
 
-def _place_in_region(spec: objects.ObjectSpec, xy: tuple[float, float], z0: float) -> tuple[float, float, float]:
+def _place_in_region(
+    spec: objects.ObjectSpec, xy: tuple[float, float], z0: float
+) -> tuple[float, float, float]:
     return (xy[0], xy[1], z0 + spec.rest_height_m)
 
 

@@ -33,8 +33,7 @@ def object_to_world(world: World, name: str) -> np.ndarray:
         body = world.data.body(name)
     except KeyError:
         raise NotFound(
-            f"no body {name!r} in scene {world.name!r}; movable objects: "
-            f"{list(world.object_names)}"
+            f"no body {name!r} in scene {world.name!r}; movable objects: {list(world.object_names)}"
         ) from None
     T = np.eye(4)
     T[:3, :3] = body.xmat.reshape(3, 3)

@@ -176,8 +176,9 @@ class World:
             offset = rng.uniform(-0.003, 0.003, size=2)
             bx, by = placed[bottom]
             z = scene.support_z + 2 * b.rest_height_m + t.rest_height_m
-            self._place(top, (bx + offset[0], by + offset[1]), rng.uniform(-np.pi, np.pi), z,
-                        t.rest_quat)  # fmt: skip
+            self._place(
+                top, (bx + offset[0], by + offset[1]), rng.uniform(-np.pi, np.pi), z, t.rest_quat
+            )
         mujoco.mj_forward(self.model, self.data)
         self.settle(settle_steps)
 
