@@ -130,6 +130,8 @@ class KDTree:
         Returns:
             (d, i): shapes (Q, k) — or (Q,) when k == 1, and without the Q axis for a single
             point. Sorted nearest first, ties by index. Missing neighbours: i = n, d = inf.
+            For Minkowski metrics, *which* of several points tied at the k-th distance is
+            returned is cKDTree's choice; ``sum_of`` (and the SPG) take the lowest index.
         """
         k = _validate_k(k)
         q, single = self._queries(x, "KDTree.query")

@@ -34,9 +34,9 @@ FeatureDistance = Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[n
 
 __all__ = ["FeatureDistance", "Metric", "abs_diff"]
 
-# Bisection steps for inverting f_i: 2**-80 relative to the search span is below float64
-# resolution, so the bound is as tight as the arithmetic allows.
-_BISECT_STEPS = 80
+# Bisection steps for inverting f_i. Every step keeps `hi` a valid bound (f(hi) > r), so fewer
+# steps only loosen the superset (by span * 2**-32), never break exactness.
+_BISECT_STEPS = 32
 
 
 def abs_diff(scale: float = 1.0) -> FeatureDistance:

@@ -1,0 +1,193 @@
+"""SpatialProximityGraph against a brute-force SPG, and updates against a fresh SPG."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from scipy import sparse
+
+from mks_sim.errors import DataError, SpecError
+from mks_sim.lowlevel import DynamicKDTree, KDTree, Metric, SpatialProximityGraph, abs_diff
+
+METRICS = {
+    "euclidean": Metric.euclidean(),
+    "manhattan": Metric.manhattan(),
+    "chebyshev": Metric.chebyshev(),
+    "sum_of": Metric.sum_of([abs_diff(), lambda a, b: 2.0 * np.abs(a - b)]),
+}
+
+
+def brute_spg(points, m, threshold, metric):
+    """Row i: the m nearest other points (ties by index), within threshold (inclusive)."""
+    n = len(points)
+    rows = []
+    for i in range(n):
+        d = np.array([float(metric.distance(points[i], points[j])) for j in range(n)])
+        others = [j for j in range(n) if j != i and (threshold is None or d[j] <= threshold)]
+        others.sort(key=lambda j: (d[j], j))
+        if m != "all":
+            others = others[:m]
+        rows.append((others, d[others]))
+    return rows
+
+
+def assert_matches(g, rows):
+    assert g.n == len(rows)
+    adj = g.adjacency
+    assert adj.shape == (g.n, g.n) and adj.nnz == sum(len(r) for r, _ in rows)
+    for i, (nb, d) in enumerate(rows):
+        assert g.neighbors(i).tolist() == nb, (i, g.neighbors(i), nb)
+        np.testing.assert_allclose(g.distances(i), d)
+        s = slice(adj.indptr[i], adj.indptr[i + 1])
+        assert adj.indices[s].tolist() == sorted(nb)
+
+
+coords = st.integers(-3, 3).map(float)
+points2d = arrays(np.float64, st.tuples(st.integers(0, 25), st.just(2)), elements=coords)
+ms = st.one_of(st.integers(1, 5), st.just("all"))
+thresholds = st.sampled_from([None, 0.0, 1.0, 1.5, 3.0])
+
+
+@pytest.mark.parametrize("name", sorted(METRICS))
+@settings(max_examples=30)
+@given(points=points2d, m=ms, threshold=thresholds)
+def test_spg_matches_brute_force(name, points, m, threshold):
+    if m == "all" and threshold is None:
+        threshold = 2.0
+    metric = METRICS[name]
+    g = SpatialProximityGraph(points, m=m, threshold=threshold, metric=metric, leafsize=2)
+    assert_matches(g, brute_spg(points, m, threshold, metric))
+
+
+@settings(max_examples=20)
+@given(
+    points=arrays(
+        np.float64,
+        st.tuples(st.integers(2, 40), st.just(3)),
+        elements=st.floats(-1, 1, width=32).map(float),
+    )
+)
+def test_spg_float_points_and_views(points):
+    g = SpatialProximityGraph(points, m=4, threshold=0.8)
+    rows = brute_spg(points, 4, 0.8, Metric.euclidean())
+    assert_matches(g, rows)
+    # symmetric view: i~j iff i->j or j->i
+    sym = g.symmetric()
+    n = len(points)
+    want = np.zeros((n, n), bool)
+    for i, (nb, _) in enumerate(rows):
+        want[i, nb] = True
+    want |= want.T
+    got = np.zeros((n, n), bool)
+    for i in range(n):
+        got[i, sym.indices[sym.indptr[i] : sym.indptr[i + 1]]] = True
+    assert np.array_equal(got, want)
+    # components: union-find over the brute-force edges
+    parent = list(range(n))
+
+    def find(a):
+        while parent[a] != a:
+            a = parent[a]
+        return a
+
+    for i, j in zip(*np.nonzero(want), strict=True):
+        parent[find(i)] = find(j)
+    count, labels = g.components()
+    assert count == len({find(i) for i in range(n)})
+    for i in range(n):
+        for j in range(n):
+            assert (labels[i] == labels[j]) == (find(i) == find(j))
+
+
+def test_zero_distance_edges_are_explicit():
+    pts = np.array([[0.0], [0.0], [0.0], [5.0]])
+    g = SpatialProximityGraph(pts, m=2, threshold=0.1)
+    adj = g.adjacency
+    assert isinstance(adj, sparse.csr_array)
+    assert adj.nnz == 6 and np.all(adj.data == 0.0)  # stored zeros, one per edge
+    assert g.pattern.nnz == 6 and g.pattern.dtype == bool
+    assert g.components()[0] == 2
+    assert g.neighbors(0).tolist() == [1, 2]
+
+
+def test_ties_at_the_mth_place_go_to_the_lower_index():
+    # 0 sits at the centre of four equidistant points; m=2 must pick 1 and 2.
+    pts = np.array([[0, 0], [1, 0], [0, 1], [-1, 0], [0, -1]], float)
+    g = SpatialProximityGraph(pts, m=2)
+    assert g.neighbors(0).tolist() == [1, 2]
+    # many duplicates: self may be missing from the tree's k nearest
+    dup = np.zeros((12, 1))
+    g = SpatialProximityGraph(dup, m=3)
+    assert g.neighbors(7).tolist() == [0, 1, 2]
+    assert g.neighbors(0).tolist() == [1, 2, 3]
+
+
+def test_parameter_errors():
+    with pytest.raises(SpecError, match="needs a finite threshold"):
+        SpatialProximityGraph(np.zeros((3, 2)), m="all")
+    with pytest.raises(SpecError, match="integer >= 1 or 'all'"):
+        SpatialProximityGraph(np.zeros((3, 2)), m=0)
+    with pytest.raises(SpecError, match="threshold >= 0"):
+        SpatialProximityGraph(np.zeros((3, 2)), m=2, threshold=-1.0)
+    with pytest.raises(DataError, match="finite"):
+        SpatialProximityGraph([[0.0, np.inf]], m=2)
+    with pytest.raises(DataError, match=r"\(N, k\)"):
+        SpatialProximityGraph(np.zeros(3), m=2)
+    g = SpatialProximityGraph(np.zeros((3, 2)), m=2)
+    with pytest.raises(DataError, match="node index"):
+        g.neighbors(3)
+    with pytest.raises(DataError, match="out of range"):
+        g.delete([5])
+
+
+def test_from_tree_uses_the_trees_points_and_metric():
+    rng = np.random.default_rng(3)
+    pts = rng.integers(0, 5, size=(30, 2)).astype(float)
+    metric = Metric.manhattan()
+    for tree in (KDTree(pts, metric=metric), DynamicKDTree(pts, metric=metric)):
+        g = SpatialProximityGraph.from_tree(tree, m=3, threshold=2.0)
+        assert_matches(g, brute_spg(pts, 3, 2.0, metric))
+
+
+def test_empty_and_single():
+    assert SpatialProximityGraph(np.zeros((0, 3)), m=3).adjacency.shape == (0, 0)
+    g = SpatialProximityGraph(np.zeros((1, 3)), m=3)
+    assert g.neighbors(0).tolist() == [] and g.components()[0] == 1
+
+
+UPDATE_OPS = st.lists(
+    st.one_of(
+        st.tuples(st.just("insert"), st.integers(1, 6)),
+        st.tuples(st.just("delete"), st.floats(0.0, 0.6)),
+    ),
+    min_size=1,
+    max_size=8,
+)
+
+
+@pytest.mark.parametrize(
+    ("m", "threshold", "metric"),
+    [(3, None, "euclidean"), (2, 1.5, "chebyshev"), ("all", 1.0, "manhattan"), (2, 2.0, "sum_of")],
+)
+@settings(max_examples=20)
+@given(ops=UPDATE_OPS, seed=st.integers(0, 2**16))
+def test_updates_equal_a_fresh_spg(m, threshold, metric, ops, seed):
+    rng = np.random.default_rng(seed)
+    pts = rng.integers(-3, 4, size=(rng.integers(0, 15), 2)).astype(float)
+    g = SpatialProximityGraph(pts, m=m, threshold=threshold, metric=METRICS[metric], leafsize=2)
+    for op, arg in ops:
+        before = g.points
+        if op == "insert":
+            new = rng.integers(-3, 4, size=(arg, 2)).astype(float)
+            idx = g.insert(new)
+            assert idx.tolist() == list(range(len(before), len(before) + arg))
+            np.testing.assert_array_equal(g.points, np.concatenate([before, new]))
+        elif g.n:
+            gone = np.flatnonzero(rng.random(g.n) < arg)
+            mapping = g.delete(gone)
+            np.testing.assert_array_equal(g.points, np.delete(before, gone, axis=0))
+            assert np.all(mapping[gone] == -1)
+        assert_matches(g, brute_spg(g.points, m, threshold, METRICS[metric]))
