@@ -13,7 +13,7 @@ import logging
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from mks_sim.errors import NotFound, SpecError
 from mks_sim.resources import data_dir
@@ -22,6 +22,7 @@ from mks_sim.sensing.registry import acceptance_names, program_names
 from mks_sim.sensing.spec import DeviceSpec, SensorSpec
 
 if TYPE_CHECKING:
+    from mks_sim.devices.base import Device
     from mks_sim.sensing.snapshot import Snapshot
 
 __all__ = ["DEVICES_FILE", "SensorGraph", "default_devices"]
@@ -293,7 +294,7 @@ class SensorGraph:
                 visit(name)
         return result
 
-    def snapshot(self, devices: Mapping[str, Any], *, strict: bool = False) -> Snapshot:
+    def snapshot(self, devices: Mapping[str, Device], *, strict: bool = False) -> Snapshot:
         """A snapshot over ``devices`` (device name -> object with ``read()``).
 
         See :class:`~mks_sim.sensing.snapshot.Snapshot`.

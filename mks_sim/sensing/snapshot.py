@@ -23,6 +23,7 @@ from mks_sim.sensing.registry import get_acceptance, get_program
 from mks_sim.sensing.spec import AlternateSpec, SensorSpec
 
 if TYPE_CHECKING:
+    from mks_sim.devices.base import Device
     from mks_sim.sensing.graph import SensorGraph
 
 __all__ = ["Attempt", "Snapshot"]
@@ -59,7 +60,7 @@ class Snapshot:
     """
 
     def __init__(
-        self, graph: SensorGraph, devices: Mapping[str, Any], *, strict: bool = False
+        self, graph: SensorGraph, devices: Mapping[str, Device], *, strict: bool = False
     ) -> None:
         self.graph = graph
         self.strict = strict
@@ -172,7 +173,7 @@ class Snapshot:
             attempts.append(Attempt(spec.name, way.name, True))
             self._provenance[spec.name] = way.name
             if way.name != "primary":
-                log.warning("sensor %r served by alternate %r", spec.name, way.name)
+                log.info("sensor %r served by alternate %r", spec.name, way.name)
             return stream
         tried = "; ".join(f"{a.way}: {a.reason}" for a in attempts if not a.ok)
         raise SensorFailure(spec.name, f"all {len(ways)} way(s) failed: {tried}")
