@@ -428,6 +428,24 @@ class OutputVector:
     def describe(self) -> str:
         return "(" + ", ".join(f.describe() for f in self.fields) + ")"
 
+    def coerce(self, data: ArrayLike, target: OutputVector) -> NDArray[np.float64]:
+        """Coerce (N, n) ``data`` of this vector onto ``target`` field by field (:func:`coerce`).
+
+        Raises:
+            DataError: the field names (in order), units or coercion modes differ, or ``data``
+                is not (N, n).
+        """
+        if self.names != target.names:
+            raise DataError(
+                f"cannot coerce fields {list(self.names)} onto {list(target.names)}; "
+                "expected the same names in the same order"
+            )
+        arr = _as_table(data, len(self), "coerce")
+        out = np.empty_like(arr)
+        for j, (src, dst) in enumerate(zip(self.fields, target.fields)):
+            out[:, j] = coerce(arr[:, j], src, dst)
+        return out
+
     def validate(self, data: ArrayLike, *, strict: bool = False, where: str = "") -> Validated:
         """Apply each field's policy to NaN and out-of-range values of ``data``.
 

@@ -288,3 +288,40 @@ def test_coerce_quantises_onto_the_target_grid_even_for_the_same_field() -> None
     # Sub-pixel circle centres of the coarse camera itself are put on its 1-pixel grid too,
     # so a merged stream has one precision.
     np.testing.assert_array_equal(coerce([10.4, 10.6, 510.9], CAM_X_512, CAM_X_512), [10, 11, 511])
+
+
+def test_output_vector_coerce_column_by_column() -> None:
+    hi, lo = camera_vector(CAM_X_1024, 1023), camera_vector(CAM_X_512, 511)
+    got = hi.coerce([[1023, 512, 128], [2, 3, 255]], lo)
+    np.testing.assert_array_equal(got, [[511, 256, 128], [1, 1, 255]])
+    with pytest.raises(DataError, match="same names in the same order"):
+        hi.coerce([[1, 2, 3]], OutputVector.of(CAM_X_512))
+
+
+_values = st.one_of(
+    st.floats(-20, 20, allow_nan=False),
+    st.just(float("nan")),
+    st.just(float("inf")),
+    st.just(float("-inf")),
+)
+
+
+@given(st.lists(st.tuples(_values, _values, _values), max_size=25))
+def test_validate_matches_a_row_by_row_reference(rows: list) -> None:
+    data = np.array(rows, dtype=float).reshape(-1, 3)
+    out = VEC.validate(data)
+    lows, highs = VEC.lows, VEC.highs
+    kept_rows, kept_flags = [], []
+    for row in data:
+        a, b, c = row
+        if not (lows[0] <= a <= highs[0]) or np.isnan(b):  # NaN compares False: rejected
+            continue
+        kept_rows.append([a, min(max(b, lows[1]), highs[1]), c])
+        kept_flags.append(not (lows[2] <= c <= highs[2]))
+    expected = np.array(kept_rows, dtype=float).reshape(-1, 3)
+    np.testing.assert_array_equal(out.data, expected)
+    np.testing.assert_array_equal(out.flags[:, 2], kept_flags)
+    assert out.report.rows_in == len(data) and out.report.rows_out == len(expected)
+    assert out.report.field("b").clipped == int(
+        np.sum(~np.isnan(data[:, 1]) & ((data[:, 1] < 0) | (data[:, 1] > 1)))
+    )
