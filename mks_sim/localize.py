@@ -1,31 +1,77 @@
 """Localize a model in a 3-D point cloud: the simulator-free pipeline (paper sections 2.2, 4).
 
-(Interface first; the pipeline lands in the next commits.)
+The execution flow of section 4, on one recorded cloud:
 
-A model that can be localized implements :class:`LocalizableModel`: it proposes pose
-hypotheses for a scene (any way it likes: rotation-invariant Hough over vertexes, control
-points, feature matching...) and offers its surface for ICP refinement and scoring.
+1. build the spatial proximity graph (SPG) of the scene; remove the dominant table plane (if
+   the objects rest on one) and split the rest into objects by SPG connectivity ("separated
+   out ... by the connectivity of the spatial proximity graph", section 4.1);
+2. group each object on its SPG: normals, planar regions, vertexes from triples of face planes
+   (the table counts as the face the object rests on);
+3. match: model vertexes against detected vertexes. A detected vertex carries its three face
+   normals, so matching one vertex to one model corner fixes the whole pose (a Hough vote in
+   pose space, counted over the other vertexes); with three or more detected vertexes the
+   rotation-invariant 3-D Hough of section 2.2.1 adds its maxima;
+4. refine every distinct candidate with point-to-plane ICP of the model surface, score it
+   (inlier fraction, residual), rank, and report symmetric equivalents once.
+
+A model that can be localized implements :class:`LocalizableModel`; :class:`PolyhedralModel`
+is the built-in one (from a mesh, a point file, or vertexes), and other rooms (e.g. a free-form
+model) implement the protocol themselves.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+import itertools
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import ConvexHull, cKDTree
+
+from mks_sim.errors import DataError, MksError, NotFound
+from mks_sim.geometry.transforms import cube_rotations, make_transform
+from mks_sim.lowlevel.grouping import (
+    PlanarRegion,
+    Plane,
+    Segmentation,
+    Vertexes,
+    build_graph,
+    fit_plane_ransac,
+    plane_vertexes,
+    segment_surfaces,
+)
+from mks_sim.models.pose import PoseHypothesis
+from mks_sim.models.refine import ModelSurface, detect_symmetries, score_pose, verify_hypotheses
 
 if TYPE_CHECKING:
-    from mks_sim.models.pose import PoseHypothesis
+    from mks_sim.geometry.meshes import Mesh
+
+__all__ = [
+    "LocalizableModel",
+    "Localization",
+    "PolyhedralModel",
+    "SegmentReport",
+    "load_model",
+    "localize_cloud",
+]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
 
 
 @runtime_checkable
 class LocalizableModel(Protocol):
-    """What :func:`localize_cloud` needs from a model.
+    """What :func:`localize_cloud` needs from a model."""
 
-    Attributes:
-        name: The model's name (for logs and reports).
-    """
-
-    name: str
+    @property
+    def name(self) -> str:
+        """The model's name (for logs and reports)."""
+        ...
 
     def hypotheses(
         self, scene_points: np.ndarray, scene_normals: np.ndarray | None
@@ -57,3 +103,816 @@ class LocalizableModel(Protocol):
         Hypotheses that differ by one of these are reported once (equivalents listed).
         """
         ...
+
+
+# --------------------------------------------------------------------------- the model
+
+
+@dataclass(frozen=True, eq=False)
+class Corner:
+    """A model vertex where three or more planar faces meet.
+
+    Attributes:
+        point: (3,) position, model frame.
+        normals: (k >= 3, 3) outward unit normals of the faces meeting there.
+    """
+
+    point: FloatArray
+    normals: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class ModelFace:
+    """A large planar face of the model: ``normal . x = offset`` and its surface samples."""
+
+    normal: FloatArray
+    offset: float
+    points: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class PolyhedralModel:
+    """A model localized by its vertexes (the paper's first approach, section 4.2).
+
+    Attributes:
+        name: model name.
+        corners: the model's vertexes with their face normals.
+        points: (M, 3) surface samples, model frame.
+        normals: (M, 3) outward unit normals of ``points``.
+        symmetry_rotations: (S, 3, 3) rotations about the origin mapping the model onto
+            itself (found among the cube's 24 rotations from the vertexes).
+        faces: the large planar faces (for plane-pair hypotheses when too few vertexes
+            are visible).
+    """
+
+    name: str
+    corners: tuple[Corner, ...]
+    points: FloatArray
+    normals: FloatArray
+    symmetry_rotations: FloatArray
+    faces: tuple[ModelFace, ...]
+    _surface: ModelSurface = field(repr=False)
+
+    # ---- construction
+
+    @classmethod
+    def from_mesh(
+        cls,
+        mesh: Mesh,
+        name: str = "mesh",
+        *,
+        n_surface: int = 4000,
+        min_face_fraction: float = 0.004,
+        rng: np.random.Generator | None = None,
+    ) -> PolyhedralModel:
+        """Model from a triangle mesh: corners where >= 3 large planar faces meet.
+
+        Args:
+            mesh: the model mesh (model frame).
+            name: model name.
+            n_surface: surface samples for ICP.
+            min_face_fraction: a planar face counts when its area is at least this fraction of
+                the mesh area (keeps the facets of tessellated curved surfaces out).
+            rng: generator for the samples (default seeded 0).
+        """
+        from mks_sim.geometry.meshes import sample_surface
+
+        rng = np.random.default_rng(0) if rng is None else rng
+        planes, corners = _mesh_corners(mesh, min_face_fraction)
+        if not corners:
+            raise DataError(
+                f"model {name!r}: the mesh has no vertex where three planar faces meet; "
+                "a polyhedral model needs corners"
+            )
+        points, normals = sample_surface(mesh, n_surface, rng=rng)
+        size = float(np.linalg.norm(np.ptp(points, axis=0)))
+        faces = []
+        for n, o in planes:
+            on = (np.abs(points @ n - o) < 1e-4 * size) & (normals @ n > 0.99)
+            if on.sum() >= 3:
+                faces.append(ModelFace(n, float(o), points[on]))
+        return cls._build(name, corners, points, normals, faces)
+
+    @classmethod
+    def from_vertexes(cls, vertexes: ArrayLike, name: str = "vertexes") -> PolyhedralModel:
+        """Model of the convex polyhedron with these vertexes (e.g. the paper's cube model)."""
+        from mks_sim.geometry.meshes import Mesh
+
+        v = np.asarray(vertexes, dtype=np.float64)
+        if v.ndim != 2 or v.shape[1] != 3 or len(v) < 4:
+            raise DataError(f"model {name!r}: expected (V >= 4, 3) vertexes, got {v.shape}")
+        hull = ConvexHull(v)
+        faces = hull.simplices.copy()
+        centre = v.mean(axis=0)
+        for f in faces:  # orient counter-clockwise seen from outside
+            n = np.cross(v[f[1]] - v[f[0]], v[f[2]] - v[f[0]])
+            if n @ (v[f[0]] - centre) < 0:
+                f[[1, 2]] = f[[2, 1]]
+        return cls.from_mesh(Mesh(v, faces), name)
+
+    @classmethod
+    def from_points(
+        cls,
+        points: ArrayLike,
+        name: str = "points",
+        normals: ArrayLike | None = None,
+        *,
+        m: int = 12,
+    ) -> PolyhedralModel:
+        """Model from a sampled surface (a point file): grouping finds faces and vertexes.
+
+        Args:
+            points: (M, 3) points on the whole model surface.
+            name: model name.
+            normals: (M, 3) outward normals if known (else estimated, pointing away from the
+                centroid).
+            m: SPG neighbours for the grouping.
+        """
+        pts = np.asarray(points, dtype=np.float64)
+        graph = build_graph(pts, m=m)
+        seg = segment_surfaces(pts, graph, seeds="all")
+        verts = plane_vertexes(seg.planes, pts, tolerance=5 * seg.spacing)
+        if len(verts) == 0:
+            raise DataError(f"model {name!r}: no vertexes found by grouping the model points")
+        corners = [Corner(p, n) for p, n in zip(verts.points, verts.normals)]
+        nrm = seg.normals if normals is None else np.asarray(normals, dtype=np.float64)
+        faces = [ModelFace(r.normal, r.plane.offset, pts[r.indices]) for r in seg.planes]
+        return cls._build(name, corners, pts, nrm, faces)
+
+    @classmethod
+    def _build(
+        cls,
+        name: str,
+        corners: list[Corner],
+        points: FloatArray,
+        normals: FloatArray,
+        faces: list[ModelFace],
+    ) -> PolyhedralModel:
+        surface = ModelSurface.from_arrays(points, normals)
+        cpts = np.stack([c.point for c in corners])
+        syms = detect_symmetries(cpts, cube_rotations(), 1e-3 * surface.size)
+        return cls(
+            name, tuple(corners), surface.points, surface.normals, syms, tuple(faces), surface
+        )
+
+    def scaled(self, factor: float) -> PolyhedralModel:
+        """The same model with coordinates multiplied by ``factor`` (unit change)."""
+        if not factor > 0:
+            raise DataError(f"model {self.name!r}: scale must be > 0, got {factor}")
+        corners = [Corner(c.point * factor, c.normals) for c in self.corners]
+        faces = [ModelFace(f.normal, f.offset * factor, f.points * factor) for f in self.faces]
+        return self._build(self.name, corners, self.points * factor, self.normals, faces)
+
+    # ---- LocalizableModel
+
+    @property
+    def vertexes(self) -> FloatArray:
+        """(V, 3) the corner positions."""
+        return np.stack([c.point for c in self.corners])
+
+    @property
+    def surface(self) -> ModelSurface:
+        return self._surface
+
+    def surface_points(self) -> np.ndarray:
+        return self.points
+
+    def surface_normals(self) -> np.ndarray:
+        return self.normals
+
+    def symmetries(self) -> np.ndarray | None:
+        return self.symmetry_rotations if len(self.symmetry_rotations) else None
+
+    def hypotheses(
+        self, scene_points: np.ndarray, scene_normals: np.ndarray | None = None
+    ) -> list[PoseHypothesis]:
+        """Group the segment (no table known) and match vertexes; see :func:`vertex_hypotheses`."""
+        del scene_normals
+        pts = np.asarray(scene_points, dtype=np.float64)
+        graph = build_graph(pts, m=12)
+        seg = segment_surfaces(pts, graph, seeds="all")
+        verts = plane_vertexes(seg.planes, pts, tolerance=4 * seg.spacing)
+        return vertex_hypotheses(self, verts, pts, vote_distance=4 * seg.spacing)
+
+
+def _mesh_corners(
+    mesh: Mesh, min_face_fraction: float
+) -> tuple[list[tuple[FloatArray, float]], list[Corner]]:
+    """The mesh's large planes ((normal, offset) pairs) and its corners."""
+    v, f = mesh.vertices, mesh.faces
+    tri = v[f]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area2 = np.linalg.norm(cross, axis=1)
+    good = area2 > 1e-18
+    n = np.zeros_like(cross)
+    n[good] = cross[good] / area2[good, None]
+    size = float(np.linalg.norm(np.ptp(v, axis=0)))
+    # Group triangles into planes by quantised (normal, offset).
+    key = np.column_stack([np.round(n * 1e3), np.round((n * tri[:, 0]).sum(1) / size * 1e3)])
+    _, plane_of, inverse_counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    plane_of = plane_of.reshape(-1)
+    plane_area = np.bincount(plane_of, weights=area2 / 2)
+    big = plane_area >= min_face_fraction * (area2.sum() / 2)
+    plane_normal = np.zeros((len(plane_area), 3))
+    np.add.at(plane_normal, plane_of, n * area2[:, None])
+    plane_normal /= np.clip(np.linalg.norm(plane_normal, axis=1, keepdims=True), 1e-12, None)
+    plane_offset = np.zeros(len(plane_area))
+    np.add.at(plane_offset, plane_of, (n * tri[:, 0]).sum(1) * area2)
+    plane_offset /= np.clip(np.bincount(plane_of, weights=area2), 1e-18, None)
+    incident: list[set[int]] = [set() for _ in range(len(v))]
+    for t, pl in enumerate(plane_of):
+        if good[t] and big[pl]:
+            for vi in f[t]:
+                incident[vi].add(int(pl))
+    corners: list[Corner] = []
+    seen: list[FloatArray] = []
+    for vi, planes in enumerate(incident):
+        if len(planes) < 3:
+            continue
+        N = plane_normal[sorted(planes)]
+        if np.linalg.matrix_rank(N, tol=0.3) < 3:
+            continue
+        if any(np.linalg.norm(v[vi] - s) < 1e-9 * size for s in seen):
+            continue
+        seen.append(v[vi])
+        corners.append(Corner(v[vi].copy(), N))
+    del inverse_counts
+    big_planes = [(plane_normal[i], float(plane_offset[i])) for i in np.flatnonzero(big)]
+    return big_planes, corners
+
+
+# --------------------------------------------------------------------------- matching
+
+
+def _kabsch_normals(M: FloatArray, N: FloatArray) -> tuple[FloatArray, float]:
+    """Rotation R with R m_i ~ n_i for rows of (3, 3) M, N; and the worst angle (deg)."""
+    U, _, Vt = np.linalg.svd(M.T @ N)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    cos = np.einsum("ij,ij->i", M @ R.T, N)
+    return R, float(np.degrees(np.arccos(np.clip(cos.min(), -1.0, 1.0))))
+
+
+def vertex_hypotheses(
+    model: PolyhedralModel,
+    detected: Vertexes,
+    scene_points: FloatArray,
+    *,
+    vote_distance: float,
+    max_angle_deg: float = 20.0,
+    keep: int = 200,
+) -> list[PoseHypothesis]:
+    """Pose hypotheses from matching detected vertexes (with face normals) to model corners.
+
+    Each (detected vertex, model corner, assignment of three of the corner's face normals to
+    the vertex's three face normals) whose angles agree gives a rotation (normals aligned) and
+    a translation (vertex onto corner). Votes: the detected vertexes that some transformed
+    model corner lands within ``vote_distance`` of. With three or more detected vertexes the
+    rotation-invariant Hough (section 2.2.1) adds its maxima when that matcher is available.
+
+    Returns:
+        At most ``keep`` hypotheses, most voted first (ties: better quick inlier fraction).
+    """
+    if len(detected) == 0:
+        return []
+    cpts = model.vertexes
+    out: list[tuple[int, FloatArray, NDArray[np.int64]]] = []
+    det_tree = cKDTree(detected.points)
+    for di in range(len(detected)):
+        Nd = detected.normals[di]
+        Gd = Nd @ Nd.T
+        for corner in model.corners:
+            for perm in itertools.permutations(range(len(corner.normals)), 3):
+                M = corner.normals[list(perm)]
+                if np.abs(M @ M.T - Gd).max() > 0.35:
+                    continue
+                R, worst = _kabsch_normals(M, Nd)
+                if worst > max_angle_deg:
+                    continue
+                T = make_transform(R, detected.points[di] - R @ corner.point)
+                moved = cpts @ R.T + T[:3, 3]
+                d, j = det_tree.query(moved, distance_upper_bound=vote_distance)
+                hit = np.isfinite(d)
+                corr = np.column_stack([j[hit], np.flatnonzero(hit)]).astype(np.int64)
+                corr = corr[np.unique(corr[:, 0], return_index=True)[1]]
+                out.append((len(corr), T, corr))
+    out.extend(_rotinv_hypotheses(model, detected, vote_distance))
+    if not out:
+        return []
+    sub = scene_points[:: max(1, len(scene_points) // 300)]
+    ranked = sorted(
+        out,
+        key=lambda o: (-o[0], -score_pose(model.surface, sub, o[1], vote_distance / 2)[1]),
+    )[:keep]
+    ref = model.vertexes.mean(axis=0)
+    return [
+        PoseHypothesis(T, T[:3, :3] @ ref + T[:3, 3], votes=v, correspondences=c)
+        for v, T, c in ranked
+    ]
+
+
+def _frame(a: FloatArray, b: FloatArray) -> FloatArray:
+    """(3, 3) orthonormal frame (columns) from two non-parallel directions."""
+    e1 = a / np.linalg.norm(a)
+    e3 = np.cross(a, b)
+    e3 /= np.linalg.norm(e3)
+    return np.column_stack([e1, np.cross(e3, e1), e3])
+
+
+def plane_pair_hypotheses(
+    model: PolyhedralModel,
+    planes: Sequence[tuple[Plane, FloatArray | None]],
+    scene_points: FloatArray,
+    *,
+    inlier_distance: float,
+    max_angle_deg: float = 8.0,
+    keep: int = 40,
+) -> list[PoseHypothesis]:
+    """Pose hypotheses from pairs of detected planes matched to pairs of model faces.
+
+    For when fewer than one vertex is visible (e.g. one wall and the top of a part on a
+    table). Two non-parallel planes fix the rotation and two components of the translation;
+    the third (along their intersection line) centres the first plane's observed extent on
+    the model face's extent. Face extents must not be exceeded by the observed region.
+
+    Args:
+        model: the model (its large faces).
+        planes: detected planes with their points ((n, 3)) or None for a plane not sampled by
+            the data (the table: it is never the first of a pair).
+        scene_points: (N, 3) segment points (for a quick inlier ranking).
+        inlier_distance: ranking inlier distance.
+        max_angle_deg: tolerance on the angle between the two normals.
+        keep: hypotheses returned (best quick inlier fraction first).
+    """
+    sub = scene_points[:: max(1, len(scene_points) // 200)]
+    faces = model.faces
+    out: list[tuple[float, FloatArray]] = []
+    cos_tol = np.sin(np.radians(max_angle_deg))
+    for (P, p_pts), (Q, _) in itertools.permutations(planes, 2):
+        if p_pts is None:
+            continue
+        cpq = float(P.normal @ Q.normal)
+        if abs(cpq) > 0.9:
+            continue
+        frame_s = _frame(P.normal, Q.normal)
+        e = frame_s[:, 2]
+        f_dir = frame_s[:, 1]
+        pe, pf = p_pts @ e, p_pts @ f_dir
+        for A, B in itertools.permutations(faces, 2):
+            if abs(float(A.normal @ B.normal) - cpq) > cos_tol:
+                continue
+            R = frame_s @ _frame(A.normal, B.normal).T
+            ae, af = A.points @ (R.T @ e), A.points @ (R.T @ f_dir)
+            slack = 4 * inlier_distance
+            if np.ptp(pe) > np.ptp(ae) + slack or np.ptp(pf) > np.ptp(af) + slack:
+                continue
+            mid_s = (pe.max() + pe.min()) / 2
+            mid_m = (ae.max() + ae.min()) / 2
+            lhs = np.stack([P.normal, Q.normal, e])
+            rhs = np.array([P.offset - A.offset, Q.offset - B.offset, mid_s - mid_m])
+            t = np.linalg.solve(lhs, rhs)
+            T = make_transform(R, t)
+            out.append((score_pose(model.surface, sub, T, inlier_distance)[1], T))
+    out.sort(key=lambda o: -o[0])
+    ref = model.vertexes.mean(axis=0)
+    return [PoseHypothesis(T, T[:3, :3] @ ref + T[:3, 3], votes=0) for _, T in out[:keep]]
+
+
+def _rotinv_hypotheses(
+    model: PolyhedralModel, detected: Vertexes, vote_distance: float
+) -> list[tuple[int, FloatArray, NDArray[np.int64]]]:
+    if len(detected) < 3:
+        return []
+    try:
+        from mks_sim.models.rotinv import RotationInvariantHough
+    except ImportError:
+        return []
+    try:
+        hough = RotationInvariantHough(model.vertexes)
+        found = hough.detect(detected.points)
+    except MksError as exc:
+        log.debug("rotation-invariant Hough gave nothing: %s", exc)
+        return []
+    return [
+        (int(h.votes), np.asarray(h.matrix, dtype=np.float64), np.asarray(h.correspondences))
+        for h in found
+    ]
+
+
+# --------------------------------------------------------------------------- the pipeline
+
+
+@dataclass(frozen=True, eq=False)
+class SegmentReport:
+    """What grouping found in one object segment.
+
+    Attributes:
+        indices: (n,) indices of the segment's points in the (NaN-free) scene.
+        planes: planar regions (indices into the segment).
+        vertexes: detected vertexes (segment frame = scene frame).
+        on_table: the table plane was used as a face of this segment.
+    """
+
+    indices: NDArray[np.intp]
+    planes: tuple[PlanarRegion, ...]
+    vertexes: Vertexes
+    on_table: bool
+
+
+@dataclass(frozen=True, eq=False)
+class Localization:
+    """Result of :func:`localize_cloud`.
+
+    Attributes:
+        found: the best hypothesis passed ``min_score``.
+        hypotheses: verified hypotheses, best first (``matrix`` model -> scene, ``votes``,
+            ``score`` in [0, 1], ``rmse`` in scene units).
+        equivalents: per hypothesis, (E, 4, 4) poses equivalent to it under the model's
+            symmetries that the matcher also proposed.
+        inlier_fractions: per hypothesis, the fraction of its segment's points explained.
+        segment_of: per hypothesis, the index into ``segments``.
+        segments: grouping diagnostics per object segment.
+        table: the removed table plane (normal towards the objects) or None.
+        spacing: median SPG edge length of the scene (its sampling spacing).
+        dropped_nan: NaN/inf scene rows dropped on input.
+        timing: seconds per stage (``graph``, ``table``, ``grouping``, ``matching``,
+            ``refinement``, ``total``).
+    """
+
+    found: bool
+    hypotheses: tuple[PoseHypothesis, ...]
+    equivalents: tuple[FloatArray, ...]
+    inlier_fractions: tuple[float, ...]
+    segment_of: tuple[int, ...]
+    segments: tuple[SegmentReport, ...]
+    table: Plane | None
+    spacing: float
+    dropped_nan: int
+    timing: dict[str, float]
+
+    @property
+    def best(self) -> PoseHypothesis | None:
+        """The best hypothesis, or None."""
+        return self.hypotheses[0] if self.hypotheses else None
+
+
+def _find_table(
+    points: FloatArray,
+    spacing: float,
+    viewpoint: FloatArray | None,
+    rng: np.random.Generator,
+    min_fraction: float = 0.2,
+) -> tuple[Plane | None, NDArray[np.bool_]]:
+    """The dominant plane if it looks like a support: large, with the rest on one side of it
+    and inside its footprint (a face of a convex object fails the footprint test)."""
+    none = np.zeros(len(points), dtype=bool)
+    if len(points) < 50:
+        return None, none
+    plane, inl = fit_plane_ransac(points, max(1.0 * spacing, 1e-12), rng, iterations=150)
+    rest = points[~inl]
+    if inl.mean() < min_fraction or len(rest) < 10:
+        return None, none
+    side = plane.distance(rest)
+    if np.mean(side > 0) < 0.5:
+        plane = plane.flipped()
+        side = -side
+    if np.mean(side > 0) < 0.95:
+        return None, none
+    if viewpoint is not None and plane.distance(viewpoint[None])[0] < 0:
+        return None, none
+    # Footprint: the rest, projected into the plane, well inside the inliers' extent.
+    n = plane.normal
+    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(n, u)
+    uv_in = points[inl] @ np.column_stack([u, w])
+    uv_rest = rest @ np.column_stack([u, w])
+    lo, hi = uv_in.min(axis=0), uv_in.max(axis=0)
+    margin = 0.05 * (hi - lo) + 2 * spacing
+    inside = np.all((uv_rest > lo + margin) & (uv_rest < hi - margin), axis=1)
+    if inside.mean() < 0.9:
+        return None, none
+    # Drop the points within the table band (a little wider than the RANSAC threshold).
+    band = np.abs(plane.distance(points)) <= 1.5 * spacing
+    return plane, band
+
+
+def _as_localizable(model: Any, scale: float) -> LocalizableModel:
+    if isinstance(model, PolyhedralModel):
+        return model if scale == 1.0 else model.scaled(scale)
+    if scale != 1.0:
+        raise DataError(
+            f"model {getattr(model, 'name', model)!r}: scale is only supported for PolyhedralModel"
+        )
+    if isinstance(model, LocalizableModel):
+        return model
+    raise DataError(
+        f"localize_cloud: expected a LocalizableModel, PolyhedralModel, mesh, file or model "
+        f"name, got {type(model).__name__}"
+    )
+
+
+def localize_cloud(
+    model: Any,
+    scene_points: ArrayLike,
+    *,
+    scale: float = 1.0,
+    viewpoint: ArrayLike | None = None,
+    table: Literal["auto", "none"] | Plane = "auto",
+    m: int = 12,
+    min_segment_points: int = 60,
+    min_score: float = 0.5,
+    max_hypotheses: int = 10,
+    max_icp: int = 12,
+    rng: np.random.Generator | None = None,
+) -> Localization:
+    """Localize a model in a point cloud (paper section 4: SPG -> grouping -> Hough -> pose).
+
+    Args:
+        model: a :class:`LocalizableModel` (e.g. :class:`PolyhedralModel`), a ``Mesh``, a
+            file path (mesh or point cloud) or a model-database name (see :func:`load_model`).
+        scene_points: (N, 3) scene points in the model's unit times ``scale``; NaN/inf rows
+            are dropped and counted.
+        scale: model coordinates are multiplied by this to get scene units (e.g. 0.001 for a
+            model in mm and a scene in m); the reported matrices map the scaled model.
+        viewpoint: (3,) sensor position in the scene frame (orients normals; else normals
+            point away from each segment's centroid).
+        table: ``"auto"`` detects and removes a supporting plane (and uses it as the face the
+            object rests on), ``"none"`` keeps every point, or a known :class:`Plane`
+            (normal towards the objects).
+        m: SPG neighbours.
+        min_segment_points: smaller SPG components are ignored.
+        min_score: ``found`` needs the best score at least this.
+        max_hypotheses: report at most this many distinct hypotheses.
+        max_icp: ICP-refine at most this many distinct candidates per segment.
+        rng: generator (RANSAC, subsampling); default seeded 0.
+
+    Returns:
+        :class:`Localization`.
+
+    Raises:
+        DataError: malformed points (wrong shape, fewer than 10 finite points) or model.
+        NotFound: a model name or file that does not exist.
+    """
+    t0 = time.perf_counter()
+    timing: dict[str, float] = {}
+    rng = np.random.default_rng(0) if rng is None else rng
+    if isinstance(model, str | Path) or type(model).__name__ == "Mesh":
+        model = load_model(model)
+    loc_model = _as_localizable(model, scale)
+    try:
+        raw = np.asarray(scene_points, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"localize_cloud: scene points are not numeric: {exc}") from exc
+    if raw.ndim != 2 or raw.shape[1] != 3:
+        raise DataError(f"localize_cloud: expected (N, 3) scene points, got shape {raw.shape}")
+    finite = np.all(np.isfinite(raw), axis=1)
+    dropped = int((~finite).sum())
+    if dropped:
+        log.warning("localize_cloud: dropped %d NaN/inf scene points of %d", dropped, len(raw))
+    pts = raw[finite]
+    if len(pts) < 10:
+        raise DataError(f"localize_cloud: expected at least 10 finite scene points, got {len(pts)}")
+    vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(3)
+
+    t = time.perf_counter()
+    probe = pts if len(pts) <= 5000 else pts[rng.choice(len(pts), 5000, replace=False)]
+    spacing = float(np.median(cKDTree(pts).query(probe, k=2)[0][:, 1]))
+    timing["graph"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    table_plane: Plane | None
+    on_table_band = np.zeros(len(pts), dtype=bool)
+    if isinstance(table, Plane):
+        table_plane = table
+        on_table_band = np.abs(table.distance(pts)) <= 1.5 * spacing
+    elif table == "auto":
+        table_plane, on_table_band = _find_table(pts, spacing, vp, rng)
+    elif table == "none":
+        table_plane = None
+    else:
+        raise DataError(f"localize_cloud: table must be 'auto', 'none' or a Plane, got {table!r}")
+    keep = np.flatnonzero(~on_table_band)
+    if table_plane is not None:
+        keep = keep[table_plane.distance(pts[keep]) > 0]
+    obj = pts[keep]
+    timing["table"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    segments: list[SegmentReport] = []
+    seg_data: list[tuple[FloatArray, Segmentation | None]] = []
+    if len(obj) >= min_segment_points:
+        graph = build_graph(obj, m=m, threshold=4.0 * spacing)
+        from scipy.sparse import csgraph
+
+        _, comp = csgraph.connected_components(graph.adjacency, directed=True, connection="weak")
+        sizes = np.bincount(comp)
+        for c in np.argsort(-sizes):
+            if sizes[c] < min_segment_points:
+                break
+            members = np.flatnonzero(comp == c)
+            seg_pts = obj[members]
+            report, seg = _group_segment(seg_pts, m, spacing, vp, table_plane)
+            segments.append(SegmentReport(keep[members], report[0], report[1], report[2]))
+            seg_data.append((seg_pts, seg))
+    timing["grouping"] = time.perf_counter() - t
+
+    t_match = 0.0
+    t_refine = 0.0
+    results: list[tuple[PoseHypothesis, FloatArray, float, int]] = []
+    syms = loc_model.symmetries()
+    surface = (
+        loc_model.surface
+        if isinstance(loc_model, PolyhedralModel)
+        else ModelSurface.from_arrays(loc_model.surface_points(), loc_model.surface_normals())
+    )
+    for si, (seg_pts, seg) in enumerate(seg_data):
+        rep = segments[si]
+        noise = float(np.median([p.plane.rmse for p in rep.planes])) if rep.planes else 0.0
+        inlier = max(1.0 * spacing, 3.0 * noise)
+        t = time.perf_counter()
+        if isinstance(loc_model, PolyhedralModel):
+            hyps = vertex_hypotheses(loc_model, rep.vertexes, seg_pts, vote_distance=4 * spacing)
+        else:
+            hyps = loc_model.hypotheses(seg_pts, None if seg is None else seg.normals)
+        t_match += time.perf_counter() - t
+        t = time.perf_counter()
+        verified = verify_hypotheses(
+            hyps,
+            surface,
+            seg_pts,
+            inlier_distance=inlier,
+            symmetries=syms,
+            max_icp=max_icp,
+            rng=rng,
+        )
+        t_refine += time.perf_counter() - t
+        best_score = verified[0].hypothesis.score if verified else 0.0
+        if isinstance(loc_model, PolyhedralModel) and best_score < min_score and rep.planes:
+            # Too few vertexes visible: hypotheses from pairs of planes (and the table).
+            t = time.perf_counter()
+            pairs: list[tuple[Plane, FloatArray | None]] = [
+                (r.plane, seg_pts[r.indices]) for r in rep.planes[:4]
+            ]
+            if rep.on_table and table_plane is not None:
+                pairs.append((table_plane.flipped(), None))
+            coarse = plane_pair_hypotheses(loc_model, pairs, seg_pts, inlier_distance=inlier)
+            t_match += time.perf_counter() - t
+            t = time.perf_counter()
+            verified += verify_hypotheses(
+                coarse,
+                surface,
+                seg_pts,
+                inlier_distance=inlier,
+                icp_distance=max(4 * inlier, 0.1 * surface.size),
+                symmetries=syms,
+                max_icp=max_icp,
+                rng=rng,
+            )
+            t_refine += time.perf_counter() - t
+        results.extend((v.hypothesis, v.equivalents, v.inlier_fraction, si) for v in verified)
+    results.sort(key=lambda r: (-r[0].score, r[0].rmse))
+    results = results[:max_hypotheses]
+    timing["matching"] = t_match
+    timing["refinement"] = t_refine
+    timing["total"] = time.perf_counter() - t0
+    found = bool(results) and results[0][0].score >= min_score
+    log.info(
+        "localize_cloud(%s): %d segments, %d hypotheses, best score %.3f, %.3f s",
+        loc_model.name,
+        len(segments),
+        len(results),
+        results[0][0].score if results else float("nan"),
+        timing["total"],
+    )
+    return Localization(
+        found=found,
+        hypotheses=tuple(r[0] for r in results),
+        equivalents=tuple(r[1] for r in results),
+        inlier_fractions=tuple(r[2] for r in results),
+        segment_of=tuple(r[3] for r in results),
+        segments=tuple(segments),
+        table=table_plane,
+        spacing=spacing,
+        dropped_nan=dropped,
+        timing=timing,
+    )
+
+
+def _group_segment(
+    seg_pts: FloatArray,
+    m: int,
+    spacing: float,
+    viewpoint: FloatArray | None,
+    table_plane: Plane | None,
+) -> tuple[tuple[tuple[PlanarRegion, ...], Vertexes, bool], Segmentation | None]:
+    graph = build_graph(seg_pts, m=m)
+    try:
+        seg = segment_surfaces(seg_pts, graph, viewpoint=viewpoint, seeds="all")
+    except DataError:
+        empty = Vertexes(
+            np.zeros((0, 3)), np.zeros((0, 3), np.intp), np.zeros((0, 3, 3)), np.zeros(0)
+        )
+        return ((), empty, False), None
+    on_table = table_plane is not None and bool(
+        np.min(table_plane.distance(seg_pts)) <= 4.0 * spacing
+    )
+    extra = [table_plane.flipped()] if on_table and table_plane is not None else []
+    verts = plane_vertexes(
+        seg.planes, seg_pts, extra_planes=extra, tolerance=4 * max(spacing, seg.spacing)
+    )
+    return (seg.planes, verts, on_table), seg
+
+
+# --------------------------------------------------------------------------- model loading
+
+_MESH_EXT = (".stl", ".obj")
+_CLOUD_EXT = (".pcd", ".npy", ".npz")
+
+
+def load_model(spec: Any, *, name: str | None = None) -> LocalizableModel:
+    """Resolve a model: an object implementing the protocol, a mesh, a file, or a name.
+
+    Args:
+        spec: a :class:`LocalizableModel`; a ``Mesh``; a path to a mesh (``.stl``, ``.obj``,
+            ``.ply`` with faces) or point cloud (``.ply`` without faces, ``.pcd``, ``.npy``,
+            ``.npz``) of the whole model surface; or a name in the model database
+            (``mks_sim.models.database.ModelDatabase``).
+        name: model name for reports (default: the file stem or the given name).
+
+    Raises:
+        NotFound: no such file or model name.
+        DataError: the file or entry does not give a usable model.
+    """
+    if isinstance(spec, LocalizableModel):
+        return spec
+    if type(spec).__name__ == "Mesh":
+        return PolyhedralModel.from_mesh(spec, name or "mesh")
+    if isinstance(spec, str | Path):
+        path = Path(spec)
+        if path.suffix.lower() in (*_MESH_EXT, *_CLOUD_EXT, ".ply") or path.exists():
+            return _load_model_file(path, name or path.stem)
+        return _load_model_name(str(spec))
+    raise DataError(
+        f"load_model: expected a model name, file path, Mesh or LocalizableModel, "
+        f"got {type(spec).__name__}"
+    )
+
+
+def _load_model_file(path: Path, name: str) -> LocalizableModel:
+    if not path.is_file():
+        raise NotFound(f"model file not found: {path}")
+    ext = path.suffix.lower()
+    if ext in _MESH_EXT or ext == ".ply":
+        from mks_sim.io.mesh import read_mesh
+
+        try:
+            return PolyhedralModel.from_mesh(read_mesh(path), name)
+        except DataError:
+            if ext != ".ply":
+                raise
+    from mks_sim.io.pointcloud import read_point_cloud
+
+    cloud = read_point_cloud(path)
+    return PolyhedralModel.from_points(cloud.points, name, cloud.normals)
+
+
+def _load_model_name(model_name: str) -> LocalizableModel:
+    try:
+        from mks_sim.models.database import ModelDatabase
+    except ImportError as exc:
+        raise NotFound(
+            f"model {model_name!r}: not a file, and the model database is unavailable"
+        ) from exc
+    db = ModelDatabase.from_dir()
+    entry = db.get(model_name)
+    return adapt_model(entry, model_name)
+
+
+def adapt_model(entry: Any, name: str) -> LocalizableModel:
+    """Turn a model-database entry into a :class:`LocalizableModel`.
+
+    Accepted: an object implementing the protocol; an object with a ``mesh`` (a ``Mesh``);
+    an object with ``vertexes`` / ``model_points`` / ``points`` ((V, 3), the convex polyhedron
+    with those vertexes, like the paper's cube model).
+    """
+    if isinstance(entry, LocalizableModel):
+        return entry
+    for attr in ("localizable", "as_localizable"):
+        fn = getattr(entry, attr, None)
+        if callable(fn):
+            out = fn()
+            if isinstance(out, LocalizableModel):
+                return out
+    mesh = getattr(entry, "mesh", None)
+    if mesh is not None:
+        mesh = mesh() if callable(mesh) else mesh
+        return PolyhedralModel.from_mesh(mesh, name)
+    for attr in ("vertexes", "model_points", "points"):
+        pts = getattr(entry, attr, None)
+        if pts is not None:
+            return PolyhedralModel.from_vertexes(np.asarray(pts, dtype=np.float64), name)
+    raise DataError(
+        f"model {name!r}: database entry of type {type(entry).__name__} has no mesh, vertexes "
+        "or model points to localize with"
+    )
