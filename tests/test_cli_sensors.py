@@ -113,12 +113,21 @@ def test_check_bad_file_exits_2_with_the_error(
 
 
 def test_check_unknown_input_against_installed_devices(
-    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    # 'ranger' is a test device, not an installed one: the installed set must reject it.
-    assert main(["sensors", "--check", str(GOOD / "sensors.toml")]) == 2
+    # 'cam' is a test device, not an installed one: the installed set must reject it.
+    path = tmp_path / "cam_sensor.toml"
+    path.write_text(
+        "[[sensor]]\n"
+        'name = "Test_Cam_Points"\n'
+        'inputs = ["cam"]\n'
+        'program = "passthrough"\n'
+        'output = [{ name = "x", low = 0, high = 1023, unit = "px" }]\n'
+    )
+    assert main(["sensors", "--check", str(path)]) == 2
     err = capsys.readouterr().err
-    assert "sensor 'Camera_Points': inputs[0]: unknown input 'cam'" in err
+    assert f"{path}: sensor 'Test_Cam_Points': inputs[0]: unknown input 'cam'" in err
+    assert "'range_finder'" in err  # the valid options are listed
 
 
 def test_check_json_reports_errors(capsys: pytest.CaptureFixture[str]) -> None:
