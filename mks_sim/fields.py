@@ -51,6 +51,7 @@ __all__ = [
     "merge_streams",
     "parse_reference",
     "parse_reference_vector",
+    "reference_vector",
     "vector_from_dicts",
 ]
 
@@ -151,6 +152,24 @@ def parse_reference_vector(
             )
         refs.append(ref)
     return tuple(refs)
+
+
+def reference_vector(
+    refs: Sequence[float | DontCare],
+) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """Omit the "don't care" values (paper section 2.1: "the vector obtained by omitting the
+    don't care values is called the reference vector for the model").
+
+    Args:
+        refs: one reference value per field (:func:`parse_reference_vector`).
+
+    Returns:
+        ``(indices (k,) int, values (k,) float)``: the positions of the cared-for fields (the
+        model's k-vector, in output-vector order) and their reference values.
+    """
+    idx = [i for i, r in enumerate(refs) if r is not DONT_CARE]
+    values = [float(refs[i]) for i in idx]  # type: ignore[arg-type]
+    return np.asarray(idx, dtype=np.intp), np.asarray(values, dtype=np.float64)
 
 
 # --------------------------------------------------------------------------- fields

@@ -23,6 +23,7 @@ from mks_sim.fields import (
     merge_streams,
     parse_reference,
     parse_reference_vector,
+    reference_vector,
 )
 
 # The paper's camera (section 1.1) and a half-resolution one.
@@ -62,6 +63,9 @@ def test_parse_reference_vector_for_circle_model_c2() -> None:
     circle = OutputVector.of(Field("x", 0, 1024), Field("y", 0, 1024), Field("radius", 0, 512))
     refs = parse_reference_vector(["*", "*", 2], circle, where="C2")
     assert refs == (DONT_CARE, DONT_CARE, 2.0)
+    idx, values = reference_vector(refs)  # the k-vector of C2 is (radius,)
+    np.testing.assert_array_equal(idx, [2])
+    np.testing.assert_array_equal(values, [2.0])
     with pytest.raises(SpecError, match=r"C2: expected 3 values.*got 2"):
         parse_reference_vector(["*", 2], circle, where="C2")
     with pytest.raises(SpecError, match=r"\[2\] \(radius\): expected a value in 0:512"):
@@ -325,3 +329,29 @@ def test_validate_matches_a_row_by_row_reference(rows: list) -> None:
     assert out.report.field("b").clipped == int(
         np.sum(~np.isnan(data[:, 1]) & ((data[:, 1] < 0) | (data[:, 1] > 1)))
     )
+
+
+@given(
+    highs=st.lists(st.integers(1, 2000), min_size=1, max_size=4),
+    sizes=st.lists(st.integers(0, 6), min_size=4, max_size=4),
+)
+def test_merge_streams_rows_in_coarsest_range_with_provenance(highs: list, sizes: list) -> None:
+    rng = np.random.default_rng(len(highs))
+    streams = []
+    for k, high in enumerate(highs):
+        vec = OutputVector.of(Field("u", 0, high, "px"), Field("w", 0.0, 1.0))
+        n = sizes[k]
+        data = np.column_stack([rng.integers(0, high + 1, n), rng.random(n)])
+        streams.append(Stream(data, vec, f"s{k}"))
+    merged = merge_streams(streams)
+    coarsest = min(highs)
+    assert merged.vector.field("u").high == coarsest
+    assert len(merged) == sum(sizes[: len(highs)])
+    assert merged.source is not None
+    for k in range(len(highs)):
+        assert int(np.sum(merged.source == f"s{k}")) == sizes[k]
+    u = merged.column("u")
+    assert np.all((u >= 0) & (u <= coarsest)) and np.all(u == np.round(u))
+    # Rows of the coarsest stream itself are unchanged.
+    k_min = highs.index(coarsest)
+    np.testing.assert_array_equal(merged.data[merged.source == f"s{k_min}"], streams[k_min].data)
