@@ -37,7 +37,8 @@ DEFAULT_OPTIONS: dict[str, dict[str, Any]] = {
     "depth_camera": {"width": 320, "height": 240, "depth": True},
     "range_finder": {
         "mounts": ("range_finder_mount_0", "range_finder_mount_1"),
-        "pattern": ScanPattern(n_pan=96, n_tilt=72, pan_deg=30.0, tilt_deg=25.0),
+        # ~2.5 mm spacing on the object region from the mounts ~0.57 m away (0.25 deg steps).
+        "pattern": ScanPattern(n_pan=128, n_tilt=112, pan_deg=16.0, tilt_deg=14.0),
         "max_range_m": 2.0,
         "sigma_m": 0.0005,
         # Visible geoms and touch pads; never group 3, the invisible collision stand-ins.

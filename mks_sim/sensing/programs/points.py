@@ -1,0 +1,330 @@
+"""3-D point programs of the workstation (metres, world frame).
+
+Point sources (alternates of one another for ``Range_Points``):
+
+- ``range_points``: the range finder's hit points merged over its views.
+- ``stereo_points``: OpenCV StereoSGBM on the stereo pair, disparity -> depth with the
+  baseline and focal length, reprojected to world points (valid disparities only).
+- ``depth_points``: the depth camera's pixels back-projected through ``K`` and its pose.
+
+Every source takes the optional params ``crop_min`` / ``crop_max`` (world box, metres: the
+work region the sensor reports on) and ``voxel_m`` (keep one point per voxel).
+
+Descriptions over a point stream (input: a stream whose first three fields are x, y, z):
+
+- ``surface_curvature``: (x, y, z, curvature) with the Table 4-5 code, +1 curved / -1 planar,
+  from PCA normals on the SPG (``mks_sim.lowlevel.grouping``).
+- ``vertex_detector``: (x, y, z) of vertexes: planar regions of each object, intersections of
+  plane triples supported by the data, the table plane (a sensor parameter) as an extra face.
+- ``control_point_detector``: (x, y, z) candidate control points of the industrial part: the
+  vertexes where one upward face and two walls meet (``industrial_part_control_points``'s
+  recipe, ``mks_sim/geometry/meshes.py``); the Hough matcher labels them.
+- ``sphere_detector``: (x, y, z, radius) of sphere fits to curved regions.
+
+Objects are separated before grouping (the paper separates the cube-sphere pair "by the
+connectivity of the spatial proximity graph", section 4.1): points within ``table_margin_m``
+of the table plane ``z = table_z_m`` are dropped, the rest split into SPG components with
+edges no longer than ``gap_m``.
+
+``touch_contacts``: (x, y, z, pressure) of the taxels above ``min_pressure_pa`` of every touch
+pad input — 3-D non-visual data for the same k-d tree and SPG as the visual points.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from types import SimpleNamespace
+from typing import Any
+
+import cv2
+import numpy as np
+
+from mks_sim.errors import DataError, SensorFailure
+from mks_sim.fields import Stream
+from mks_sim.sensing import register_program
+
+logger = logging.getLogger(__name__)
+
+
+# --- helpers ---------------------------------------------------------------------------------
+
+
+def postprocess(points: np.ndarray, params: Mapping[str, Any]) -> np.ndarray:
+    """Drop non-finite rows, crop to ``crop_min``/``crop_max``, thin to ``voxel_m``."""
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if "crop_min" in params or "crop_max" in params:
+        lo = np.asarray(params.get("crop_min", [-np.inf] * 3), dtype=float)
+        hi = np.asarray(params.get("crop_max", [np.inf] * 3), dtype=float)
+        if lo.shape != (3,) or hi.shape != (3,):
+            raise DataError(f"crop_min/crop_max: expected 3 numbers each, got {lo} and {hi}")
+        pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
+    voxel = float(params.get("voxel_m", 0.0))
+    if voxel > 0 and len(pts):
+        keys = np.floor(pts / voxel).astype(np.int64)
+        _, first = np.unique(keys, axis=0, return_index=True)
+        pts = pts[np.sort(first)]
+    return pts
+
+
+def _stream_points(inputs: Mapping[str, Any], program: str) -> np.ndarray:
+    if len(inputs) != 1:
+        raise SensorFailure(program, f"expected one point-stream input, got {sorted(inputs)}")
+    value = next(iter(inputs.values()))
+    data = value.data if isinstance(value, Stream) else np.asarray(value, dtype=float)
+    if data.ndim != 2 or data.shape[1] < 3:
+        raise SensorFailure(program, f"expected (N, >=3) points, got shape {data.shape}")
+    pts = data[:, :3]
+    return pts[np.isfinite(pts).all(axis=1)]
+
+
+def _object_clouds(pts: np.ndarray, params: Mapping[str, Any]) -> list[np.ndarray]:
+    """Points above the table split into SPG components (largest first)."""
+    from mks_sim.lowlevel.spg import SpatialProximityGraph
+
+    table_z = float(params.get("table_z_m", 0.0))
+    margin = float(params.get("table_margin_m", 0.004))
+    above = pts[pts[:, 2] > table_z + margin]
+    min_points = int(params.get("min_object_points", 30))
+    if len(above) < min_points:
+        return []
+    graph = SpatialProximityGraph(
+        above, m=int(params.get("m", 8)), threshold=float(params.get("gap_m", 0.01))
+    )
+    n, labels = graph.components()
+    counts = np.bincount(labels, minlength=n)
+    return [above[labels == c] for c in np.argsort(-counts) if counts[c] >= min_points]
+
+
+def _table_plane(params: Mapping[str, Any]) -> Any:
+    from mks_sim.lowlevel.grouping import Plane
+
+    # Normal out of the object, i.e. down into the table (plane_vertexes' convention).
+    return Plane(np.array([0.0, 0.0, -1.0]), -float(params.get("table_z_m", 0.0)))
+
+
+def _segment(cloud: np.ndarray, params: Mapping[str, Any]) -> Any:
+    from mks_sim.lowlevel.grouping import segment_surfaces
+
+    kw: dict[str, Any] = {"m": int(params.get("m", 12))}
+    for key in ("curvature_threshold", "angle_deg", "min_points", "seeds"):
+        if key in params:
+            kw[key] = params[key]
+    return segment_surfaces(cloud, **kw)
+
+
+# --- point sources ---------------------------------------------------------------------------
+
+
+@register_program("range_points")
+def range_points(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
+    """(N, 3) hit points of every range-finder view (``list[RangeScan]`` inputs)."""
+    chunks = []
+    for name, reading in inputs.items():
+        scans = reading if isinstance(reading, list | tuple) else [reading]
+        for s in scans:
+            if not hasattr(s, "points_world") or not hasattr(s, "hit"):
+                raise SensorFailure("range_points", f"input {name!r} is not a range scan")
+            chunks.append(np.asarray(s.points_world)[np.asarray(s.hit)])
+    pts = postprocess(np.concatenate(chunks) if chunks else np.empty((0, 3)), params)
+    if len(pts) == 0:
+        raise SensorFailure("range_points", "no range returns")
+    return pts
+
+
+def _frames(inputs: Mapping[str, Any]) -> Any:
+    """A stereo frame (anything with ``left``, ``right``, ``K``, ``left_to_world``,
+    ``right_to_left``) from one stereo reading or two camera readings (duck-typed: the sensing
+    layer does not import the devices)."""
+    values = list(inputs.values())
+    if len(values) == 1 and hasattr(values[0], "right_to_left"):
+        return values[0]
+    if len(values) != 2:
+        raise SensorFailure(
+            "stereo_points", f"expected a left and a right frame, got {sorted(inputs)}"
+        )
+    left = inputs.get("stereo_left", values[0])
+    right = inputs.get("stereo_right", values[1])
+    if left.rgb.shape != right.rgb.shape or not np.allclose(left.K, right.K, atol=1e-6):
+        raise SensorFailure(
+            "stereo_points",
+            f"expected two cameras with equal image size and intrinsics, got {left.rgb.shape} "
+            f"K={np.round(left.K, 3).tolist()} and {right.rgb.shape} K={np.round(right.K, 3).tolist()}",
+        )
+    right_to_left = np.linalg.inv(left.camera_to_world) @ right.camera_to_world
+    if np.linalg.norm(right_to_left[:3, 3]) < 1e-9:
+        raise SensorFailure("stereo_points", "the two cameras share one optical centre")
+    return SimpleNamespace(
+        left=left.rgb, right=right.rgb, K=left.K, left_to_world=left.camera_to_world,
+        right_to_left=right_to_left,
+    )  # fmt: skip
+
+
+def stereo_to_points(sf: Any, params: Mapping[str, Any]) -> np.ndarray:
+    """(N, 3) world points from a :class:`~mks_sim.devices.stereo.StereoFrame` (SGBM)."""
+    h, w = sf.left.shape[:2]
+    K = np.asarray(sf.K, dtype=float)
+    left_to_right = np.linalg.inv(sf.right_to_left)
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
+        K, np.zeros(5), K, np.zeros(5), (w, h), left_to_right[:3, :3], left_to_right[:3, 3],
+        flags=cv2.CALIB_ZERO_DISPARITY, alpha=0,
+    )  # fmt: skip
+    maps_l = cv2.initUndistortRectifyMap(K, np.zeros(5), R1, P1, (w, h), cv2.CV_32FC1)
+    maps_r = cv2.initUndistortRectifyMap(K, np.zeros(5), R2, P2, (w, h), cv2.CV_32FC1)
+    grey_l = cv2.remap(
+        cv2.cvtColor(np.ascontiguousarray(sf.left), cv2.COLOR_RGB2GRAY), *maps_l, cv2.INTER_LINEAR
+    )
+    grey_r = cv2.remap(
+        cv2.cvtColor(np.ascontiguousarray(sf.right), cv2.COLOR_RGB2GRAY), *maps_r, cv2.INTER_LINEAR
+    )
+    num = int(params.get("num_disparities", 128))
+    num = max(16, 16 * ((num + 15) // 16))
+    block = int(params.get("block_size", 5)) | 1
+    min_d = int(params.get("min_disparity", 0))
+    sgbm = cv2.StereoSGBM.create(
+        minDisparity=min_d, numDisparities=num, blockSize=block,
+        P1=8 * block * block, P2=32 * block * block, disp12MaxDiff=1,
+        uniquenessRatio=int(params.get("uniqueness", 10)),
+        speckleWindowSize=int(params.get("speckle_window", 100)), speckleRange=2,
+        mode=cv2.STEREO_SGBM_MODE_SGBM,
+    )  # fmt: skip
+    disp = sgbm.compute(grey_l, grey_r).astype(np.float32) / 16.0
+    valid = disp > max(min_d, 0) + 0.5
+    # OpenCV ignores its rectified region's border: do not trust the leftmost num columns.
+    valid[:, : min_d + num] = False
+    xyz_rect = cv2.reprojectImageTo3D(disp, Q)[valid].astype(float)  # rectified left frame
+    xyz_cam = xyz_rect @ R1  # R1 maps left camera -> rectified; R1^T back, row form
+    T = np.asarray(sf.left_to_world, dtype=float)
+    pts = xyz_cam @ T[:3, :3].T + T[:3, 3]
+    max_depth = float(params.get("max_depth_m", np.inf))
+    return pts[xyz_rect[:, 2] <= max_depth]
+
+
+@register_program("stereo_points")
+def stereo_points(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
+    """(N, 3) world points from the stereo pair (two ``CameraFrame`` s or a ``StereoFrame``)."""
+    pts = postprocess(stereo_to_points(_frames(inputs), params), params)
+    if len(pts) == 0:
+        raise SensorFailure("stereo_points", "no valid disparities")
+    return pts
+
+
+def depth_to_points(frame: Any, stride: int = 1) -> np.ndarray:
+    """(N, 3) world points of a depth ``CameraFrame`` (every ``stride``-th pixel, finite depth)."""
+    if frame.depth is None:
+        raise SensorFailure("depth_points", f"camera {frame.name!r} gives no depth")
+    depth = np.asarray(frame.depth, dtype=float)[::stride, ::stride]
+    h, w = np.asarray(frame.depth).shape
+    v, u = np.mgrid[0:h:stride, 0:w:stride]
+    ok = np.isfinite(depth) & (depth > 0)
+    K = np.asarray(frame.K, dtype=float)
+    z = depth[ok]
+    x = (u[ok] - K[0, 2]) * z / K[0, 0]
+    y = (v[ok] - K[1, 2]) * z / K[1, 1]
+    T = np.asarray(frame.camera_to_world, dtype=float)
+    return np.c_[x, y, z] @ T[:3, :3].T + T[:3, 3]
+
+
+@register_program("depth_points")
+def depth_points(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
+    """(N, 3) world points from one depth camera reading."""
+    frames = [v for v in inputs.values() if hasattr(v, "depth")]
+    if len(frames) != 1:
+        raise SensorFailure(
+            "depth_points", f"expected one depth camera input, got {sorted(inputs)}"
+        )
+    pts = postprocess(depth_to_points(frames[0], int(params.get("stride", 1))), params)
+    if len(pts) == 0:
+        raise SensorFailure("depth_points", "no valid depth pixels")
+    return pts
+
+
+# --- descriptions ----------------------------------------------------------------------------
+
+
+@register_program("surface_curvature")
+def surface_curvature(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
+    """(N, 4) rows (x, y, z, curvature code +1 / -1) of the object points (table dropped)."""
+    from mks_sim.lowlevel.grouping import curvature_code, estimate_normals
+
+    pts = _stream_points(inputs, "surface_curvature")
+    if params.get("drop_table", True):
+        table_z = float(params.get("table_z_m", 0.0))
+        pts = pts[pts[:, 2] > table_z + float(params.get("table_margin_m", 0.004))]
+    if len(pts) < 4:
+        raise SensorFailure("surface_curvature", f"expected >= 4 object points, got {len(pts)}")
+    kw = {"threshold": params["curvature_threshold"]} if "curvature_threshold" in params else {}
+    sn = estimate_normals(pts, m=int(params.get("m", 12)))
+    return np.c_[pts, curvature_code(sn.curvature, **kw).astype(float)]
+
+
+def object_vertexes(cloud: np.ndarray, params: Mapping[str, Any]) -> Any:
+    """:class:`~mks_sim.lowlevel.grouping.Vertexes` of one object cloud and its segmentation."""
+    from mks_sim.lowlevel.grouping import plane_vertexes
+
+    seg = _segment(cloud, params)
+    tol = float(params.get("vertex_tolerance_m", 0.0)) or 3.0 * max(seg.spacing, 1e-4)
+    verts = plane_vertexes(
+        seg.planes, cloud, extra_planes=[_table_plane(params)], tolerance=tol,
+        min_angle_deg=float(params.get("min_angle_deg", 30.0)),
+    )  # fmt: skip
+    return verts, seg
+
+
+@register_program("vertex_detector")
+def vertex_detector(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
+    """(V, 3) vertexes of every object above the table."""
+    pts = _stream_points(inputs, "vertex_detector")
+    rows = [object_vertexes(c, params)[0].points for c in _object_clouds(pts, params)]
+    return np.concatenate(rows) if rows else np.empty((0, 3))
+
+
+@register_program("control_point_detector")
+def control_point_detector(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
+    """(C, 3) vertexes where one upward face meets two walls (the part's control points)."""
+    pts = _stream_points(inputs, "control_point_detector")
+    up_cos = np.cos(np.deg2rad(float(params.get("up_tolerance_deg", 20.0))))
+    wall_sin = np.sin(np.deg2rad(float(params.get("up_tolerance_deg", 20.0))))
+    rows = []
+    for cloud in _object_clouds(pts, params):
+        verts, seg = object_vertexes(cloud, params)
+        n_regions = len(seg.planes)
+        for v, faces, normals in zip(verts.points, verts.faces, verts.normals):
+            if np.any(faces >= n_regions):  # on the table: a bottom corner
+                continue
+            nz = np.abs(normals[:, 2])
+            if (nz >= up_cos).sum() == 1 and (nz <= wall_sin).sum() == 2:
+                rows.append(v)
+    return np.asarray(rows, dtype=float).reshape(-1, 3)
+
+
+@register_program("sphere_detector")
+def sphere_detector(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
+    """(S, 4) rows (x, y, z, radius) of spheres fitted to curved regions of the objects."""
+    pts = _stream_points(inputs, "sphere_detector")
+    r_min = float(params.get("min_radius_m", 0.005))
+    r_max = float(params.get("max_radius_m", 0.2))
+    max_rmse = float(params.get("max_rmse_ratio", 0.1))
+    rows = []
+    for cloud in _object_clouds(pts, params):
+        for region in _segment(cloud, params).curved:
+            s = region.sphere
+            if s is not None and r_min <= s.radius <= r_max and s.rmse <= max_rmse * s.radius:
+                rows.append([*s.center, s.radius])
+    return np.asarray(rows, dtype=float).reshape(-1, 4)
+
+
+@register_program("touch_contacts")
+def touch_contacts(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
+    """(N, 4) rows (x, y, z, pressure Pa) of taxels above ``min_pressure_pa`` (default 500)."""
+    threshold = float(params.get("min_pressure_pa", 500.0))
+    rows = []
+    for name, reading in inputs.items():
+        if not hasattr(reading, "pressure") or not hasattr(reading, "positions_world"):
+            raise SensorFailure("touch_contacts", f"input {name!r} is not a touch reading")
+        p = np.asarray(reading.pressure, dtype=float)
+        pos = np.asarray(reading.positions_world, dtype=float)
+        on = p > threshold
+        rows.append(np.c_[pos[on], p[on]])
+    return np.concatenate(rows) if rows else np.empty((0, 4))
