@@ -128,6 +128,11 @@ def test_installed_devices_declare_the_stable_names() -> None:
 
 
 def test_unknown_sensor_and_missing_folder(graph: SensorGraph) -> None:
+    snap = graph.snapshot(devices())
+    with pytest.raises(NotFound, match=r"'ranger' is a device, not a logical sensor"):
+        snap.get("ranger")
+    with pytest.raises(NotFound, match="unknown device 'lidar'"):
+        snap.read("lidar")
     with pytest.raises(NotFound, match=r"unknown logical sensor 'Nope'; sensors: \["):
         graph.sensor("Nope")
     with pytest.raises(NotFound, match="sensors folder not found"):

@@ -133,6 +133,8 @@ class Snapshot:
             return self._streams[sensor]
         if sensor in self._failures:
             raise self._failures[sensor]
+        if sensor in self.graph.device_names:
+            raise NotFound(f"{sensor!r} is a device, not a logical sensor; use read({sensor!r})")
         spec = self.graph.sensor(sensor)
         try:
             stream = self._evaluate(spec)
