@@ -30,3 +30,4 @@ __all__ = [
     "SpecError",
 ]
 __version__ = "0.1.0"
+__import__("mks_sim.envs", fromlist=["register_envs"]).register_envs()  # gymnasium envs

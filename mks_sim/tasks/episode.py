@@ -158,6 +158,70 @@ def make_touch_reader(devices: Mapping[str, Any]) -> Callable[[], np.ndarray]:
     return read
 
 
+def build_episode_world(task: TaskSpec, rng: np.random.Generator) -> Any:
+    """The task's world with objects placed from ``rng`` and removed objects parked.
+
+    A placement that finds no free spot is redrawn from the same generator (deterministic).
+    """
+    from mks_sim.sim.world import build_world
+
+    world = build_world(task.scene)
+    randomize_world(world, rng)
+    if task.remove:
+        remove_objects(world, task.remove)
+    return world
+
+
+def randomize_world(world: Any, rng: np.random.Generator, tries: int = 10) -> None:
+    """``world.randomize(rng)``, redrawn when the placement finds no free spot."""
+    for k in range(tries):
+        try:
+            world.randomize(rng)
+            break
+        except MksError as exc:
+            if k == tries - 1:
+                raise
+            logger.info("placement redrawn: %s", exc)
+    world.mark_initial()
+
+
+def make_scene_points_fn(devices: Mapping[str, Any]) -> Callable[[], np.ndarray | None]:
+    """Sensed 3-D points of the scene (world frame): the ``Range_Points`` logical sensor
+    (with its alternates), else the range finder's raw hits; None when nothing delivers."""
+
+    def read() -> np.ndarray | None:
+        try:
+            from mks_sim.sensing import SensorGraph  # type: ignore[attr-defined]
+
+            stream = SensorGraph.from_dir().snapshot(devices).get("Range_Points")
+            return np.asarray(stream.data, dtype=float)[:, :3]
+        except (MksError, ImportError, AttributeError) as exc:
+            logger.debug("Range_Points unavailable (%s); reading the range finder", exc)
+        dev = devices.get("range_finder")
+        if dev is None:
+            return None
+        try:
+            scans = dev.read()
+        except DeviceFailure:
+            return None
+        pts = [np.asarray(s.hit_points, dtype=float) for s in scans]
+        return np.concatenate(pts) if pts else None
+
+    return read
+
+
+def obstacle_points(
+    points: np.ndarray | None, object_to_world: np.ndarray, radius_m: float, table_z: float
+) -> np.ndarray | None:
+    """Scene points that are neither the table nor within ``radius_m`` of the object."""
+    if points is None or len(points) == 0:
+        return None
+    pts = points[np.all(np.isfinite(points), axis=1)]
+    pts = pts[pts[:, 2] > table_z + 0.004]
+    far = np.linalg.norm(pts - object_to_world[:3, 3], axis=1) > radius_m
+    return pts[far]
+
+
 def remove_objects(world: Any, objects: Iterable[str]) -> None:
     """Set-up: take objects off the table (onto the floor, out of every view)."""
     for k, name in enumerate(objects):
@@ -187,8 +251,10 @@ class GraspRunner:
         controller: ArmHandController,
         localize_fn: LocalizeFn,
         monitor: HoldMonitor | None = None,
+        scene_points_fn: Callable[[], np.ndarray | None] | None = None,
     ) -> None:
         self.world = world
+        self.scene_points_fn = scene_points_fn
         self.task = task
         self.ctl = controller
         self.localize_fn = localize_fn
@@ -221,9 +287,16 @@ class GraspRunner:
         if est is None:
             return False, "not localized"
         act = self.task.action
+        obstacles = None
+        if self.scene_points_fn is not None:
+            g = self.geometry
+            radius = g.radius_m if g.kind == "sphere" else float(np.linalg.norm(g.half_extents_m))
+            obstacles = obstacle_points(
+                self.scene_points_fn(), est, radius + 0.012, names.TABLE_TOP_Z
+            )
         try:
             plan = plan_grasp(est, act, self.geometry, preferred_yaw=self.ctl.pinch_yaw(),
-                              table_z=names.TABLE_TOP_Z)  # fmt: skip
+                              table_z=names.TABLE_TOP_Z, obstacles_world=obstacles)  # fmt: skip
         except MksError as exc:
             return False, f"no grasp: {exc}"
         self.plan = plan
@@ -304,16 +377,13 @@ def run_episode(
     """
     from mks_sim.devices.factory import make_devices
     from mks_sim.devices.faults import DeviceFaults
-    from mks_sim.sim.world import build_world
 
     if object not in OBJECTS:
         raise NotFound(f"unknown object {object!r}; expected one of {OBJECTS}")
     t_start = time.perf_counter()
     task = task or task_for_object(object)
     faults = tuple(faults)
-    world = build_world(task.scene, seed=seed)
-    if task.remove:
-        remove_objects(world, task.remove)
+    world = build_episode_world(task, np.random.default_rng(seed))
     rng = np.random.default_rng([seed, 1])
     devices = make_devices(
         world.model, world.data, rng, faults={f: DeviceFaults(failed=True) for f in faults}
@@ -329,7 +399,7 @@ def run_episode(
                                 make_touch_reader(devices), on_frame=on_frame,
                                 frame_every=frame_every)  # fmt: skip
         monitor = HoldMonitor(world, task.object, names.TABLE_TOP_Z)
-        runner = GraspRunner(world, task, ctl, localize_fn, monitor)
+        runner = GraspRunner(world, task, ctl, localize_fn, monitor, make_scene_points_fn(devices))
         errors = [(float("nan"), float("nan"))]
 
         def on_localized(est: np.ndarray | None) -> None:

@@ -96,14 +96,38 @@ def wrap_angle(angle: float) -> float:
     return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
-def _nearest_yaw(candidates: list[float], preferred: float, period: float) -> float:
-    """The candidate (mod ``period``) nearest ``preferred``, returned near ``preferred``."""
-    best, best_d = preferred, math.inf
-    for yaw in candidates:
-        d = (yaw - preferred + period / 2) % period - period / 2
-        if abs(d) < best_d:
-            best, best_d = preferred + d, abs(d)
-    return best
+# Open fingertips in the pinch-site frame (x: closing axis, y: across), metres: finger 1 on
+# +x, fingers 2 and 3 side by side on -x (measured on dm_control's JacoHand, fingers open).
+FINGERTIPS_XY = np.array([[0.066, -0.016], [-0.066, -0.044], [-0.066, 0.014]])
+FINGER_CLEARANCE_M = 0.03
+
+
+def finger_collisions(point: np.ndarray, yaw: float, obstacles_world: np.ndarray | None) -> int:
+    """Obstacle points a top-down descent to ``point`` at ``yaw`` would put a fingertip on."""
+    if obstacles_world is None or len(obstacles_world) == 0:
+        return 0
+    c, s = math.cos(yaw), math.sin(yaw)
+    tips = FINGERTIPS_XY @ np.array([[c, s], [-s, c]]) + point[:2]  # (3, 2) world xy
+    obs = np.asarray(obstacles_world, dtype=float)
+    obs = obs[obs[:, 2] < point[2] + 0.10]
+    d = np.linalg.norm(obs[None, :, :2] - tips[:, None, :], axis=2)  # (3, N)
+    return int(np.count_nonzero(d.min(axis=0) < FINGER_CLEARANCE_M))
+
+
+def _choose(
+    candidates: list[tuple[float, float]],
+    point: np.ndarray,
+    preferred_yaw: float,
+    obstacles_world: np.ndarray | None,
+) -> tuple[float, float]:
+    """The candidate with fewest finger collisions, then the least wrist turn."""
+
+    def key(c: tuple[float, float]) -> tuple[int, float]:
+        turn = abs(wrap_angle(c[0] - preferred_yaw))
+        return finger_collisions(point, c[0], obstacles_world), turn
+
+    yaw, width = min(candidates, key=key)
+    return preferred_yaw + wrap_angle(yaw - preferred_yaw), width
 
 
 def _check_pose(object_to_world: np.ndarray) -> np.ndarray:
@@ -120,6 +144,7 @@ def plan_grasp(
     preferred_yaw: float = 0.0,
     table_z: float = 0.0,
     min_clearance_m: float = 0.018,
+    obstacles_world: np.ndarray | None = None,
 ) -> GraspPlan:
     """Choose a top-down grasp for an object at ``object_to_world``.
 
@@ -131,6 +156,9 @@ def plan_grasp(
         table_z: height of the table top, metres.
         min_clearance_m: the pinch point stays at least this high above the table so the
             fingertips do not dig into it.
+        obstacles_world: (N, 3) sensed points of everything but the object and the table
+            (world frame, metres), or None. Candidate yaws whose open fingertips would come
+            down on such points are avoided; among the free ones the hand turns least.
 
     Raises:
         DataError: the pose is not a finite 4x4 matrix.
@@ -140,43 +168,36 @@ def plan_grasp(
     T = _check_pose(object_to_world)
     R, centre = T[:3, :3], T[:3, 3]
     gt = action.grasp_type
+    candidates: list[tuple[float, float]] = []  # (yaw, width)
     if gt == "opposite_faces":
         if geometry.kind not in ("box", "part"):
             raise SpecError(f"grasp_type 'opposite_faces' needs a box model, got {geometry.kind!r}")
         tilt = np.abs(R[2, :])  # |z component| of each face normal pair
-        horizontal = np.flatnonzero(tilt <= tilt.min() + 0.05)
-        candidates = []
-        for i in horizontal:
-            n = R[:, i]
-            candidates.append(math.atan2(n[1], n[0]))
-        yaw = _nearest_yaw(candidates, preferred_yaw, math.pi)
-        axis_index = int(horizontal[0])
-        for i in horizontal:
-            n = R[:, i]
-            d = abs(wrap_angle(2 * (math.atan2(n[1], n[0]) - yaw))) / 2
-            if d < 1e-6:
-                axis_index = int(i)
-        width = 2.0 * geometry.half_extents_m[axis_index]
+        for i in np.flatnonzero(tilt <= tilt.min() + 0.05):
+            yaw_i = math.atan2(R[1, i], R[0, i])
+            candidates += [
+                (yaw_i + k * math.pi, 2.0 * geometry.half_extents_m[i]) for k in range(2)
+            ]
         point = centre + np.array([0.0, 0.0, -action.grasp_depth_m])
-        point[2] = max(point[2], table_z + min_clearance_m)
     elif gt == "through_centre":
-        yaw = preferred_yaw
-        width = 2.0 * geometry.radius_m
-        point = centre.copy()
-        point[2] = max(point[2] - action.grasp_depth_m, table_z + min_clearance_m)
+        candidates = [(preferred_yaw + k * math.pi / 6, 2.0 * geometry.radius_m) for k in range(12)]
+        point = centre + np.array([0.0, 0.0, -action.grasp_depth_m])
     elif gt == "feature":
         feat = geometry.features.get(action.feature)
         if feat is None:
             raise NotFound(
                 f"grasp feature {action.feature!r} not in the model; known: {sorted(geometry.features)}"
             )
-        point = R @ np.asarray(feat.point_object) + centre
+        point = (
+            R @ np.asarray(feat.point_object) + centre - np.array([0.0, 0.0, action.grasp_depth_m])
+        )
         axis = R @ np.asarray(feat.axis_object)
-        yaw = _nearest_yaw([math.atan2(axis[1], axis[0])], preferred_yaw, math.pi)
-        width = feat.width_m
-        point[2] = max(point[2] - action.grasp_depth_m, table_z + min_clearance_m)
+        yaw_f = math.atan2(axis[1], axis[0])
+        candidates = [(yaw_f + k * math.pi, feat.width_m) for k in range(2)]
     else:  # pragma: no cover - the spec loader rejects other types
         raise SpecError(f"unknown grasp_type {gt!r}")
+    point[2] = max(point[2], table_z + min_clearance_m)
+    yaw, width = _choose(candidates, point, preferred_yaw, obstacles_world)
     return GraspPlan(
         grasp_point_world=(float(point[0]), float(point[1]), float(point[2])),
         yaw_rad=float(yaw),

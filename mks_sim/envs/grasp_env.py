@@ -1,0 +1,349 @@
+"""``mks_sim/Grasp-v0``: the workstation as a gymnasium environment.
+
+The agent moves the Jaco's pinch point (Cartesian deltas and a yaw delta; the arm follows
+through dm_control IK) and opens / closes the hand. It observes the logical-sensor outputs:
+the localization estimate of the object (sensed at ``reset``, and again every
+``resense_every`` steps when asked), the fingertip touch pads and the arm's proprioception;
+camera images, depth and range points only when the constructor asks for them.
+
+Example:
+    >>> import gymnasium as gym, mks_sim
+    >>> env = gym.make("mks_sim/Grasp-v0", object="cube")     # doctest: +SKIP
+    >>> obs, info = env.reset(seed=0)                          # doctest: +SKIP
+    >>> obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+
+Reward and ``info`` are evaluation (ground truth): ``info["success"]`` is the issue-#5
+criterion (object >= 8 cm above the table held for 1 s); the reward is that success (1.0)
+minus a small distance-to-object shaping term.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from typing import Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from mks_sim.errors import MksError, NotFound
+from mks_sim.sim import names
+from mks_sim.tasks.controller import ArmHandController, RobotNames
+from mks_sim.tasks.episode import (
+    OBJECTS,
+    LocalizeFn,
+    make_touch_reader,
+    randomize_world,
+    remove_objects,
+    sensor_localize_fn,
+)
+from mks_sim.tasks.evaluate import HOLD_S, MIN_CLEARANCE_M, localization_error, lowest_point_z
+from mks_sim.tasks.spec import task_for_object
+
+MAX_STEP_M = 0.02  # pinch-point motion per step at |action| = 1
+MAX_YAW_RAD = 0.15
+CONTROL_PERIODS_PER_STEP = 5  # 5 x 20 ms = 0.1 s of simulated time per env step
+_INF = np.inf
+
+
+class GraspEnv(gym.Env):
+    """Pick up ``object`` (``cube`` | ``sphere`` | ``part``) from the workstation table.
+
+    Args:
+        object: which grasp task (``tasks/grasp_<object>.toml``).
+        render_mode: ``None`` or ``"rgb_array"``.
+        faults: device names failed for every episode (e.g. ``("range_finder",)``).
+        observe_image: add ``"image"``, the overhead camera RGB, (H, W, 3) uint8.
+        observe_depth: add ``"depth"``, the depth camera, (H, W) float32 metres (0 = none).
+        observe_points: add ``"points"``, ``n_points`` range-finder points (N, 3) float32
+            (zero-padded) and their count.
+        image_size: (width, height) of images and depth maps.
+        n_points: number of range points observed.
+        max_episode_steps: truncation horizon (also enforced by the registration).
+        resense_every: re-localize every this many steps (0 = only at reset).
+        localize_fn: localization override (tests of the env API alone); default the
+            sensor-based workstation pipeline.
+        render_size: (width, height) of ``render()`` frames.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        object: str = "cube",
+        render_mode: str | None = None,
+        faults: Iterable[str] = (),
+        observe_image: bool = False,
+        observe_depth: bool = False,
+        observe_points: bool = False,
+        image_size: tuple[int, int] = (64, 48),
+        n_points: int = 256,
+        max_episode_steps: int = 200,
+        resense_every: int = 0,
+        localize_fn: LocalizeFn | None = None,
+        render_size: tuple[int, int] = (160, 120),
+    ) -> None:
+        if object not in OBJECTS:
+            raise NotFound(f"unknown object {object!r}; expected one of {OBJECTS}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise MksError(f"render_mode: expected None or 'rgb_array', got {render_mode!r}")
+        self._kwargs = dict(
+            object=object, render_mode=render_mode, faults=tuple(faults),
+            observe_image=observe_image, observe_depth=observe_depth,
+            observe_points=observe_points, image_size=tuple(image_size), n_points=n_points,
+            max_episode_steps=max_episode_steps, resense_every=resense_every,
+            localize_fn=localize_fn, render_size=tuple(render_size),
+        )  # fmt: skip
+        from mks_sim.sim.world import build_world
+
+        self.object = object
+        self.render_mode = render_mode
+        self.faults = tuple(faults)
+        self.task = task_for_object(object)
+        self.max_episode_steps = max_episode_steps
+        self.resense_every = resense_every
+        self._localize_override = localize_fn
+        self.image_size = (int(image_size[0]), int(image_size[1]))
+        self.n_points = int(n_points)
+        self.render_size = (int(render_size[0]), int(render_size[1]))
+        self.world = build_world(self.task.scene)
+        self._names = RobotNames.from_model(self.world.model)
+        self._devices: Any = None
+        self._renderer: mujoco.Renderer | None = None
+        self._ctl: ArmHandController | None = None
+
+        w, h = self.image_size
+        obs: dict[str, spaces.Space] = {
+            "pose_estimate": spaces.Box(-10.0, 10.0, (4, 4), np.float64),
+            "pose_valid": spaces.MultiBinary(1),
+            "touch": spaces.Box(-1.0, _INF, (3,), np.float64),
+            "arm_qpos": spaces.Box(-_INF, _INF, (6,), np.float64),
+            "arm_qvel": spaces.Box(-_INF, _INF, (6,), np.float64),
+            "finger_qpos": spaces.Box(-_INF, _INF, (3,), np.float64),
+            "pinch_pos": spaces.Box(-_INF, _INF, (3,), np.float64),
+            "pinch_yaw": spaces.Box(-math.pi, math.pi, (1,), np.float64),
+        }
+        self._observed_devices = ["touch_finger_1", "touch_finger_2", "touch_finger_3",
+                                  "range_finder", "stereo_left", "stereo_right"]  # fmt: skip
+        if observe_image:
+            obs["image"] = spaces.Box(0, 255, (h, w, 3), np.uint8)
+            self._observed_devices.append("overhead_camera")
+        if observe_depth:
+            obs["depth"] = spaces.Box(0.0, _INF, (h, w), np.float32)
+            self._observed_devices.append("depth_camera")
+        if observe_points:
+            obs["points"] = spaces.Box(-_INF, _INF, (self.n_points, 3), np.float32)
+            obs["n_points"] = spaces.Box(0, self.n_points, (1,), np.int64)
+        self.observation_space = spaces.Dict(obs)
+        self._obs_keys = frozenset(obs)
+        # dx, dy, dz, dyaw (scaled by MAX_STEP_M / MAX_YAW_RAD), grip (< 0 open, >= 0 close).
+        self.action_space = spaces.Box(-1.0, 1.0, (5,), np.float32)
+
+        self._estimate: np.ndarray | None = None
+        self._target = np.zeros(3)
+        self._yaw = 0.0
+        self._steps = 0
+        self._held_steps = 0
+
+    # --- pickling: rebuild from the constructor arguments ---------------------------------
+    def __getstate__(self) -> dict[str, Any]:
+        return dict(self._kwargs)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__init__(**state)  # type: ignore[misc]
+
+    # --- gymnasium API --------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, Any], dict[str, Any]]:
+        super().reset(seed=seed)
+        from mks_sim.devices.factory import make_devices
+        from mks_sim.devices.faults import DeviceFaults
+
+        world = self.world
+        mujoco.mj_resetData(world.model, world.data)
+        randomize_world(world, self.np_random)
+        if self.task.remove:
+            remove_objects(world, self.task.remove)
+        world.data.time = 0.0
+        world.mark_initial()
+        if self._devices is None:
+            # Built once (camera renderers are costly); every reset re-seeds their noise.
+            options_ = {
+                "overhead_camera": {"width": self.image_size[0], "height": self.image_size[1]},
+                "depth_camera": {"width": self.image_size[0], "height": self.image_size[1]},
+            }
+            self._devices = make_devices(
+                world.model, world.data, np.random.default_rng(0),
+                faults={f: DeviceFaults(failed=True) for f in self.faults},
+                names=self._observed_devices, options=options_,
+            )  # fmt: skip
+        for dev, child in zip(
+            self._devices.values(), self.np_random.spawn(len(self._devices)), strict=True
+        ):
+            dev.rng = child
+        self._ctl = ArmHandController(world.physics, self._names, make_touch_reader(self._devices))
+        self._ctl.set_arm(self._ctl.arm_qpos())
+        self._ctl.grip = -1.0
+        self._target = self._ctl.pinch_pos()
+        self._yaw = self._ctl.pinch_yaw()
+        self._steps = 0
+        self._held_steps = 0
+        self._sense()
+        return self._observation(), self._info()
+
+    def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
+        if self._ctl is None:
+            raise MksError("GraspEnv.step() before reset()")
+        a = np.clip(np.asarray(action, dtype=float).reshape(5), -1.0, 1.0)
+        ctl = self._ctl
+        self._target = self._target + a[:3] * MAX_STEP_M
+        self._target[2] = max(self._target[2], names.TABLE_TOP_Z + 0.01)
+        self._yaw = float((self._yaw + a[3] * MAX_YAW_RAD + math.pi) % (2 * math.pi) - math.pi)
+        q, ok = ctl.solve_ik(self._target, self._yaw, max_steps=60)
+        if ok:
+            ctl.q_target = q
+        else:  # unreachable: stay where the arm is
+            self._target = ctl.pinch_pos()
+        ctl.grip = 1.0 if a[4] >= 0 else -1.0
+        ctl.step(CONTROL_PERIODS_PER_STEP)
+        self._steps += 1
+        if self.resense_every and self._steps % self.resense_every == 0:
+            self._sense()
+        clearance = self._clearance()
+        self._held_steps = self._held_steps + 1 if clearance >= MIN_CLEARANCE_M else 0
+        step_s = CONTROL_PERIODS_PER_STEP * ctl.n_sub * self.world.model.opt.timestep
+        success = self._held_steps * step_s >= HOLD_S - 1e-9
+        dist = float(np.linalg.norm(ctl.pinch_pos() - self.world.data.body(self.object).xpos))
+        reward = (1.0 if success else 0.0) - 0.1 * dist
+        truncated = self._steps >= self.max_episode_steps and not success
+        return (
+            self._observation(),
+            float(reward),
+            bool(success),
+            bool(truncated),
+            self._info(success),
+        )
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        w, h = self.render_size
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.world.model, height=h, width=w)
+        cam = mujoco.MjvCamera()
+        cam.lookat[:] = (0.0, 0.1, names.TABLE_TOP_Z + 0.1)
+        cam.distance, cam.azimuth, cam.elevation = 1.1, 150.0, -25.0
+        self._renderer.update_scene(self.world.data, camera=cam)
+        return self._renderer.render().copy()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        if self._devices is not None:
+            self._devices.close()
+            self._devices = None
+
+    # --- internals ------------------------------------------------------------------------
+    def _sense(self) -> None:
+        fn = self._localize_override or sensor_localize_fn(self._devices)
+        self._estimate = fn(self.world, self.object)
+
+    def _clearance(self) -> float:
+        z = lowest_point_z(self.world.model, self.world.data, self.object)
+        return z - names.TABLE_TOP_Z
+
+    def _observation(self) -> dict[str, Any]:
+        ctl = self._ctl
+        assert ctl is not None
+        est = self._estimate
+        touch = np.nan_to_num(ctl._touch(), nan=-1.0)
+        d = self.world.data
+        qvel = np.array([d.joint(j).qvel[0] for j in self._names.arm_joints])
+        obs: dict[str, Any] = {
+            "pose_estimate": np.clip(est, -10, 10) if est is not None else np.zeros((4, 4)),
+            "pose_valid": np.array([est is not None], dtype=np.int8),
+            "touch": np.maximum(touch, -1.0),
+            "arm_qpos": ctl.arm_qpos(),
+            "arm_qvel": qvel,
+            "finger_qpos": ctl.finger_qpos(),
+            "pinch_pos": ctl.pinch_pos(),
+            "pinch_yaw": np.array([ctl.pinch_yaw()]),
+        }
+        space = self._obs_keys
+        if "image" in space:
+            obs["image"] = self._image()
+        if "depth" in space:
+            obs["depth"] = self._depth()
+        if "points" in space:
+            obs["points"], obs["n_points"] = self._points()
+        return obs
+
+    def _read(self, name: str) -> Any:
+        from mks_sim.errors import DeviceFailure
+
+        dev = self._devices.get(name) if self._devices is not None else None
+        if dev is None:
+            return None
+        try:
+            return dev.read()
+        except DeviceFailure:
+            return None
+
+    def _image(self) -> np.ndarray:
+        w, h = self.image_size
+        frame = self._read("overhead_camera")
+        if frame is None:
+            return np.zeros((h, w, 3), np.uint8)
+        return _resize(np.asarray(frame.rgb, dtype=np.uint8), w, h)
+
+    def _depth(self) -> np.ndarray:
+        w, h = self.image_size
+        frame = self._read("depth_camera")
+        if frame is None or frame.depth is None:
+            return np.zeros((h, w), np.float32)
+        depth = np.nan_to_num(np.asarray(frame.depth, dtype=np.float32), nan=0.0)
+        return _resize(depth, w, h)
+
+    def _points(self) -> tuple[np.ndarray, np.ndarray]:
+        out = np.zeros((self.n_points, 3), np.float32)
+        reading = self._read("range_finder")
+        if reading is None:
+            return out, np.array([0])
+        readings = reading if isinstance(reading, (list, tuple)) else [reading]
+        pts = np.concatenate(
+            [
+                np.asarray(r.points_world, dtype=float).reshape(-1, 3)[
+                    np.asarray(r.hit).reshape(-1)
+                ]
+                for r in readings
+            ]
+        )
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        if len(pts) > self.n_points:
+            idx = np.linspace(0, len(pts) - 1, self.n_points).astype(int)
+            pts = pts[idx]
+        out[: len(pts)] = pts
+        return out, np.array([len(pts)])
+
+    def _info(self, success: bool = False) -> dict[str, Any]:
+        err = localization_error(self.world, self.object, self._estimate)
+        return {
+            "success": bool(success),
+            "localization_error": {
+                "position_mm": err.position_mm,
+                "rotation_deg": err.rotation_deg,
+            },
+            "clearance_m": self._clearance(),
+        }
+
+
+def _resize(image: np.ndarray, w: int, h: int) -> np.ndarray:
+    if image.shape[1] == w and image.shape[0] == h:
+        return image
+    import cv2
+
+    return cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)

@@ -1,0 +1,142 @@
+"""Reports: stage images (matplotlib, Agg backend), videos (imageio) and summary tables.
+
+Videos are MP4 when ``imageio-ffmpeg`` is installed, GIF (Pillow) otherwise; a request for
+``.mp4`` without it writes ``.gif`` beside it and says so.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mks_sim.errors import DataError
+
+logger = logging.getLogger(__name__)
+
+
+def has_ffmpeg() -> bool:
+    """True when imageio can write MP4 (``imageio-ffmpeg`` installed)."""
+    try:
+        import imageio_ffmpeg  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def write_video(frames: Sequence[np.ndarray], path: str | Path, fps: float = 15.0) -> Path:
+    """Write (H, W, 3) uint8 frames to ``path`` (MP4 or GIF by suffix).
+
+    Returns:
+        The path written (``.gif`` instead of ``.mp4`` when ffmpeg is missing).
+
+    Raises:
+        DataError: no frames, or frames of different shapes.
+    """
+    import imageio.v3 as iio
+
+    if not frames:
+        raise DataError(f"video {path}: expected at least one frame, got none")
+    shape = frames[0].shape
+    if any(f.shape != shape for f in frames) or len(shape) != 3:
+        raise DataError(f"video {path}: frames must all be (H, W, 3); first is {shape}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix.lower() in (".mp4", ".m4v", ".mov") and not has_ffmpeg():
+        new = path.with_suffix(".gif")
+        logger.warning("imageio-ffmpeg is not installed: writing %s instead of %s", new, path)
+        path = new
+    stack = np.stack([np.asarray(f, dtype=np.uint8) for f in frames])
+    if path.suffix.lower() == ".gif":
+        iio.imwrite(path, stack, duration=1000.0 / fps, loop=0)
+    else:
+        iio.imwrite(path, stack, fps=fps)
+    return path
+
+
+def format_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """A plain-text table (columns padded, floats to 2 decimals, nan as '-')."""
+
+    def cell(v: Any) -> str:
+        if isinstance(v, float):
+            return "-" if not math.isfinite(v) else f"{v:.2f}"
+        return str(v)
+
+    text = [[cell(v) for v in row] for row in rows]
+    widths = [
+        max(len(h), *(len(r[i]) for r in text)) if text else len(h) for i, h in enumerate(headers)
+    ]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(headers, widths))]
+    lines.append("  ".join("-" * w for w in widths))
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in text]
+    return "\n".join(lines)
+
+
+def _figure(title: str):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(6.4, 4.8), dpi=100)
+    fig.suptitle(title)
+    return fig, plt
+
+
+def save_image(image: np.ndarray, path: str | Path, title: str = "") -> Path:
+    """Save an (H, W[, 3]) image with a title (depth images get a colour bar)."""
+    fig, plt = _figure(title)
+    ax = fig.add_subplot(111)
+    img = np.asarray(image)
+    if img.ndim == 2:
+        im = ax.imshow(img, cmap="viridis")
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    else:
+        ax.imshow(img)
+    ax.set_axis_off()
+    path = Path(path)
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def save_points(
+    points: np.ndarray,
+    path: str | Path,
+    title: str = "",
+    labels: np.ndarray | None = None,
+    edges: np.ndarray | None = None,
+    markers: dict[str, np.ndarray] | None = None,
+    max_points: int = 6000,
+) -> Path:
+    """3-D scatter of ``points`` (N, 3), coloured by ``labels`` (N,), with optional SPG
+    ``edges`` (E, 2) index pairs and named marker sets (M, 3)."""
+    fig, plt = _figure(title)
+    ax = fig.add_subplot(111, projection="3d")
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    idx = np.arange(len(pts))
+    if len(pts) > max_points:
+        idx = np.random.default_rng(0).choice(len(pts), max_points, replace=False)
+    c = None if labels is None else np.asarray(labels)[idx]
+    if len(idx):
+        ax.scatter(pts[idx, 0], pts[idx, 1], pts[idx, 2], s=1, c=c, cmap="tab20")
+    if edges is not None and len(edges):
+        e = np.asarray(edges)[:: max(1, len(edges) // 3000)]
+        for i, j in e:
+            ax.plot(*pts[[i, j]].T, lw=0.2, color="0.4")
+    for k, (name, m) in enumerate((markers or {}).items()):
+        m = np.asarray(m, dtype=float).reshape(-1, 3)
+        ax.scatter(m[:, 0], m[:, 1], m[:, 2], s=40, marker="x^os*"[k % 5], label=name)
+    if markers:
+        ax.legend(loc="upper left", fontsize=7)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+    path = Path(path)
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+    return path
