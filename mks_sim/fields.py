@@ -353,7 +353,7 @@ class ValidationReport:
         return self.summary()
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Validated:
     """The result of :meth:`OutputVector.validate`.
 
@@ -521,7 +521,8 @@ def _readonly(arr: np.ndarray) -> np.ndarray:
     return arr
 
 
-@dataclass(frozen=True)
+# eq=False: comparing streams field by field would compare arrays (ambiguous truth value).
+@dataclass(frozen=True, eq=False)
 class Stream:
     """The output of a logical sensor: an n-tuple stream and its output vector.
 
