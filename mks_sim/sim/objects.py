@@ -158,3 +158,78 @@ def add_clutter(root: mjcf.RootElement, index: int, pos: tuple[float, float, flo
         half = (0.02, 0.02, 0.04)
     body.add("geom", name=f"{name}_geom", type="box", size=list(half), **common)
     return ObjectSpec(name, "block", half[2], float(np.hypot(half[0], half[1])))
+
+
+def _triplanar_texcoords(vertices: np.ndarray, scale_m: float = 0.05) -> np.ndarray:
+    """(V, 2) texture coordinates u = (x + z)/s, v = (y + z)/s: no axis-aligned face of the
+    mesh gets a degenerate (zero-area) mapping, so a random-dot texture covers every face."""
+    v = np.asarray(vertices, dtype=float)
+    return np.column_stack([(v[:, 0] + v[:, 2]) / scale_m, (v[:, 1] + v[:, 2]) / scale_m])
+
+
+def add_part(root: mjcf.RootElement, pos: tuple[float, float, float]) -> ObjectSpec:
+    """The industrial part ("Renault piece", ``mks_sim.geometry.meshes``).
+
+    The true mesh is generated at build time and inlined into the MJCF (``<mesh vertex=
+    face= texcoord=>``; no file on disk): a group-0 geom that renders, ray casts and carries
+    the mass (exact mesh inertia) but does not collide. Contact uses the convex decomposition
+    ``industrial_part_boxes()`` as massless group-3 primitives.
+    """
+    from mks_sim.geometry.meshes import industrial_part_boxes, industrial_part_mesh
+
+    mesh = industrial_part_mesh()
+    # Unwelded (three vertices per face) with face normals: flat shading of the planar faces
+    # and per-face texture coordinates.
+    corners = mesh.vertices[mesh.faces].reshape(-1, 3)  # (3F, 3)
+    asset = root.asset.add(
+        "mesh",
+        name="part_mesh",
+        vertex=corners.ravel(),
+        face=np.arange(len(corners)),
+        normal=np.repeat(mesh.normals, 3, axis=0).ravel(),
+        texcoord=_triplanar_texcoords(corners).ravel(),
+        inertia="exact",
+    )
+    mat = random_dot_material(
+        root, "part_mat", (0.55, 0.58, 0.62), (0.15, 0.15, 0.18), kind="2d", size=128
+    )
+    body = _object_body(root, names.PART, pos)
+    body.add(
+        "geom",
+        name="part_visual",
+        type="mesh",
+        mesh=asset,
+        material=mat,
+        density=DENSITY_PART,
+        contype=0,
+        conaffinity=0,
+        group=names.GROUP_VISUAL,
+    )
+    from scipy.spatial.transform import Rotation
+
+    for i, prim in enumerate(industrial_part_boxes()):
+        x, y, z, w = Rotation.from_matrix(prim.rotation).as_quat()
+        size = (
+            list(prim.half_sizes)
+            if prim.kind == "box"
+            else [prim.half_sizes[0], prim.half_sizes[2]]
+        )
+        body.add(
+            "geom",
+            name=f"part_collision_{i}",
+            type=prim.kind,
+            size=size,
+            pos=prim.centre,
+            quat=(w, x, y, z),
+            density=0.0,
+            group=names.GROUP_COLLISION_ONLY,
+            rgba=(0.9, 0.4, 0.1, 0.5),
+            friction=OBJECT_FRICTION,
+            condim=4,
+        )
+    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    footprint = float(np.max(np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 1])))
+    if lo[2] != 0.0:
+        log.warning("part mesh bottom at z = %.4f m, expected 0 (object frame)", lo[2])
+    del hi
+    return ObjectSpec(names.PART, "industrial part", -float(lo[2]), footprint)

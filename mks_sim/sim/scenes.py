@@ -226,7 +226,40 @@ def scene2() -> SceneSpec:
     )
 
 
-_SCENES: dict[str, Callable[[], SceneSpec]] = {"scene2": scene2}
+def scene1() -> SceneSpec:
+    """Dark flat parts on a light tray in the paper's Figure 4-1 layout (``flatparts``)."""
+    from mks_sim.sim import flatparts
+
+    root, robot = _workstation("scene1")
+    flatparts.add_tray(root)
+    specs = tuple(flatparts.add_flat_part(root, part) for part in flatparts.CATALOGUE)
+    margin = 0.01
+    return SceneSpec(
+        name="scene1",
+        root=root,
+        robot=robot,
+        objects=specs,
+        region_center_xy=(0.0, 0.0),
+        region_half_xy=(flatparts.TRAY_HALF[0] - margin, flatparts.TRAY_HALF[1] - margin),
+        support_z=flatparts.TRAY_TOP_Z,
+    )
+
+
+def part_scene() -> SceneSpec:
+    """The industrial part alone on the table (yawed so no face is axis-aligned)."""
+    root, robot = _workstation("part")
+    spec = objects.add_part(root, (0.0, 0.0, names.TABLE_TOP_Z))
+    body = root.find("body", names.PART)
+    body.euler = (0.0, 0.0, 0.35)
+    body.pos = (0.0, 0.0, names.TABLE_TOP_Z + spec.rest_height_m)
+    return SceneSpec(name="part", root=root, robot=robot, objects=(spec,))
+
+
+_SCENES: dict[str, Callable[[], SceneSpec]] = {
+    "scene1": scene1,
+    "scene2": scene2,
+    "part": part_scene,
+}
 
 
 def register_scene(name: str, builder: Callable[[], SceneSpec]) -> None:

@@ -10,6 +10,7 @@ its principal-axes frame, so a mesh geom's frame is not the object's.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -44,3 +45,63 @@ def object_to_world(world: World, name: str) -> np.ndarray:
 def all_object_poses(world: World) -> dict[str, np.ndarray]:
     """``object_to_world`` of every movable object of the scene."""
     return {name: object_to_world(world, name) for name in world.object_names}
+
+
+@dataclass(frozen=True)
+class FlatPartTruth:
+    """Where a scene-1 part is and what it is (the machine-readable scene list).
+
+    Attributes:
+        name: body name.
+        kind: part kind (``mks_sim.sim.flatparts.CATALOGUE``).
+        xy_world: (x, y) of the centroid, metres, world frame.
+        yaw_rad: rotation about world z.
+        uv_paper: the centroid in the paper's pixel units (1 px = 1 mm on the tray,
+            u = 256 + x/mm, v = 256 - y/mm) -- comparable with Tables 4-1 / 4-3.
+        corners, holes: silhouette corners and holes.
+        radius_m: outer radius of round parts (disc, washer), else 0.
+        hole_radius_m: hole radius, else 0.
+        paper_index: row in Tables 4-1 / 4-3 (0 = not in the paper).
+    """
+
+    name: str
+    kind: str
+    xy_world: tuple[float, float]
+    yaw_rad: float
+    uv_paper: tuple[float, float]
+    corners: int
+    holes: int
+    radius_m: float
+    hole_radius_m: float
+    paper_index: int
+
+
+def scene1_manifest(world: World) -> list[FlatPartTruth]:
+    """What is where in scene 1, from the current body poses (evaluation only).
+
+    Raises:
+        NotFound: the world is not scene 1.
+    """
+    from mks_sim.sim import flatparts
+
+    if world.name != "scene1":
+        raise NotFound(f"scene1_manifest: expected world 'scene1', got {world.name!r}")
+    out = []
+    for part in flatparts.CATALOGUE:
+        T = object_to_world(world, part.name)
+        x, y = float(T[0, 3]), float(T[1, 3])
+        out.append(
+            FlatPartTruth(
+                name=part.name,
+                kind=part.kind,
+                xy_world=(x, y),
+                yaw_rad=float(np.arctan2(T[1, 0], T[0, 0])),
+                uv_paper=(256.0 + x * 1000.0, 256.0 - y * 1000.0),
+                corners=part.corners,
+                holes=part.holes,
+                radius_m=part.radius_m,
+                hole_radius_m=part.hole_radius_m,
+                paper_index=part.paper_index,
+            )
+        )
+    return out

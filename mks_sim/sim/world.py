@@ -30,7 +30,8 @@ HOME_ARM_QPOS = (-1.107, 2.788, 1.171, 3.725, -1.846, 4.189)
 HOME_FINGER_QPOS = (0.2, 0.2, 0.2)
 SETTLE_STEPS = 250  # 0.5 s at 2 ms: objects dropped from their resting height come to rest
 _MIN_GAP_M = 0.012  # clearance between footprints of randomly placed objects
-_MAX_TRIES = 500
+_MAX_TRIES = 100  # per object, before the whole layout restarts
+_MAX_LAYOUTS = 200
 
 
 class World:
@@ -145,42 +146,61 @@ class World:
         """
         scene = self.scene
         self._set_home()
-        tops = {top: bottom for top, bottom in scene.stacked}
-        cx, cy = scene.region_center_xy
-        hx, hy = scene.region_half_xy
-        placed: dict[str, tuple[float, float]] = {}
         specs = {s.name: s for s in scene.objects}
-        for spec in scene.objects:
-            if spec.name in tops:
-                continue
-            for _ in range(_MAX_TRIES):
-                r = spec.footprint_radius_m
-                xy = (rng.uniform(cx - hx + r, cx + hx - r), rng.uniform(cy - hy + r, cy + hy - r))
-                if all(
-                    np.hypot(xy[0] - p[0], xy[1] - p[1])
-                    > r + specs[other].footprint_radius_m + _MIN_GAP_M
-                    for other, p in placed.items()
-                ):
-                    break
-            else:
-                raise MksError(
-                    f"scene {self.name!r}: no free spot for {spec.name!r} after {_MAX_TRIES} "
-                    "tries; enlarge the region or remove objects"
-                )
-            placed[spec.name] = xy
-            yaw = rng.uniform(-np.pi, np.pi)
-            self._place(spec.name, xy, yaw, scene.support_z + spec.rest_height_m, spec.rest_quat)
+        placed = self._sample_layout(rng)
+        for name, (xy, yaw) in placed.items():
+            spec = specs[name]
+            self._place(name, xy, yaw, scene.support_z + spec.rest_height_m, spec.rest_quat)
         for top, bottom in scene.stacked:
             b = specs[bottom]
             t = specs[top]
             offset = rng.uniform(-0.003, 0.003, size=2)
-            bx, by = placed[bottom]
+            bx, by = placed[bottom][0]
             z = scene.support_z + 2 * b.rest_height_m + t.rest_height_m
             self._place(
                 top, (bx + offset[0], by + offset[1]), rng.uniform(-np.pi, np.pi), z, t.rest_quat
             )
         mujoco.mj_forward(self.model, self.data)
         self.settle(settle_steps)
+
+    def _sample_layout(
+        self, rng: np.random.Generator
+    ) -> dict[str, tuple[tuple[float, float], float]]:
+        """Non-overlapping (xy, yaw) of the free-standing objects, by rejection sampling.
+
+        A layout that paints itself into a corner is restarted as a whole (deterministic
+        given ``rng``).
+        """
+        scene = self.scene
+        tops = {top for top, _ in scene.stacked}
+        cx, cy = scene.region_center_xy
+        hx, hy = scene.region_half_xy
+        specs = [s for s in scene.objects if s.name not in tops]
+        for _ in range(_MAX_LAYOUTS):
+            placed: dict[str, tuple[tuple[float, float], float]] = {}
+            radius: dict[str, float] = {}
+            for spec in specs:
+                r = spec.footprint_radius_m
+                for _ in range(_MAX_TRIES):
+                    xy = (
+                        float(rng.uniform(cx - hx + r, cx + hx - r)),
+                        float(rng.uniform(cy - hy + r, cy + hy - r)),
+                    )
+                    if all(
+                        np.hypot(xy[0] - p[0], xy[1] - p[1]) > r + radius[o] + _MIN_GAP_M
+                        for o, (p, _) in placed.items()
+                    ):
+                        break
+                else:
+                    break  # restart the layout
+                placed[spec.name] = (xy, float(rng.uniform(-np.pi, np.pi)))
+                radius[spec.name] = r
+            if len(placed) == len(specs):
+                return placed
+        raise MksError(
+            f"scene {self.name!r}: no non-overlapping layout in region "
+            f"{scene.region_half_xy} m after {_MAX_LAYOUTS} attempts; enlarge the region"
+        )
 
     def settle(self, steps: int = SETTLE_STEPS) -> None:
         """Step ``steps`` times with zero controls, then zero all velocities."""
