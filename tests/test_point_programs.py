@@ -328,3 +328,36 @@ def test_scene2_points_lie_on_the_objects() -> None:
     best = spheres[np.argmin(np.linalg.norm(spheres[:, :3] - sphere_T[:3, 3], axis=1))]
     np.testing.assert_allclose(best[:3], sphere_T[:3, 3], atol=0.003)
     assert best[3] == pytest.approx(0.03, abs=0.003)
+
+
+# --- the sphere model kind -----------------------------------------------------------------------
+
+
+def test_sphere_model_from_the_database(cube_sphere_cloud) -> None:
+    from mks_sim.models.database import ModelDatabase
+
+    model = ModelDatabase.from_dir().get("sphere_3cm")
+    assert model.radius_m == 0.03 and model.sensor == "Sphere_Detector"
+    _, cube, sphere = cube_sphere_cloud
+    (hyp,) = model.hypotheses(sphere, None)
+    np.testing.assert_allclose(hyp.matrix[:3, 3], [*SPHERE_XY, TABLE_Z + 0.03], atol=1e-3)
+    assert model.hypotheses(cube, None) == []  # a cube is no 3 cm sphere
+    rows = np.array([[0, 0, 0, 0.03], [0, 0, 0, 0.05], [1, 1, 1, 0.031]])
+    np.testing.assert_array_equal(model.match(rows), [0, 2])
+    assert model.surface_points().shape == model.surface_normals().shape
+    np.testing.assert_allclose(np.linalg.norm(model.surface_points(), axis=1), 0.03)
+
+
+def test_sphere_model_entry_errors(tmp_path) -> None:
+    from mks_sim.errors import SpecError
+    from mks_sim.models.database import ModelDatabase
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[[model]]\nname = "s"\nkind = "sphere"\nradius_m = -1\ntolerance_m = 0.01\n')
+    with pytest.raises(SpecError, match=r"model 's': field 'radius_m': expected a number > 0"):
+        ModelDatabase.from_files([bad])
+    bad.write_text(
+        '[[model]]\nname = "s"\nkind = "sphere"\nradius_m = 1\ntolerance_m = 0.01\nradius = 2\n'
+    )
+    with pytest.raises(SpecError, match=r"unknown field\(s\) \['radius'\]"):
+        ModelDatabase.from_files([bad])

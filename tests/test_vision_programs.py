@@ -150,3 +150,20 @@ def test_no_objects_and_bad_inputs() -> None:
     assert get_program("circle_detector")({"c": empty}, PARAMS).shape == (0, 3)
     with pytest.raises(SensorFailure, match="expected exactly one camera reading"):
         get_program("corner_holes_detector")({}, PARAMS)
+
+
+def test_workstation_feature_models_pick_their_objects() -> None:
+    from mks_sim.models.database import ModelDatabase
+
+    db = ModelDatabase.from_dir()
+    discs = [(-0.15, 0.10, 0.02), (0.05, -0.08, 0.025), (0.18, 0.12, 0.015), (-0.05, -0.15, 0.02)]
+    frame = _draw([(_ngon(x, y, r, 720), []) for x, y, r in discs], _camera(15.0), seed=4)
+    circles = get_program("circle_detector")({"overhead_camera": frame}, PARAMS)
+    hit = db.get("disc_2cm").matches(circles)
+    assert hit.sum() == 2 and np.allclose(np.sort(circles[hit, 2]), 0.02, atol=0.001)
+    expected, shapes = _scene_shapes()
+    rows = get_program("corner_holes_detector")(
+        {"overhead_camera": _draw(shapes, _camera())}, PARAMS
+    )
+    nut = rows[db.get("square_nut").matches(rows)]
+    assert len(nut) == 1 and np.hypot(nut[0, 0] + 0.15, nut[0, 1] - 0.1) < 0.005
