@@ -1,17 +1,63 @@
-"""`mks-sim paper` (under construction: its owner replaces this module)."""
+"""`mks-sim paper`: the paper's case studies recomputed beside the paper's printed numbers.
+
+Sections come from the modules named in :data:`SECTIONS`; each exposes
+``report() -> (text: str, json: dict)``. The text sections are printed one after the other;
+``--json`` prints one JSON object, the union of the sections' dicts (keys must not collide).
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib
+import json
+import sys
+from typing import Any
 
 from mks_sim.errors import MksError
 
-HELP = "(not built yet)"
+HELP = "recompute the paper's case-study tables and print them beside the paper's"
+
+# Modules with report() -> (text, dict); other rooms append theirs.
+SECTIONS: tuple[str, ...] = ("mks_sim.paper.tables",)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    del parser
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    parser.add_argument(
+        "--section",
+        action="append",
+        metavar="MODULE",
+        help=f"only these section modules (repeatable; default: all of {', '.join(SECTIONS)})",
+    )
+
+
+def assemble(sections: tuple[str, ...] | list[str] = SECTIONS) -> tuple[str, dict[str, Any]]:
+    """Run every section's ``report()``; return the joined text and the merged dict."""
+    texts: list[str] = []
+    merged: dict[str, Any] = {}
+    for name in sections:
+        try:
+            module = importlib.import_module(name)
+        except ImportError as exc:
+            raise MksError(f"paper section {name!r} cannot be imported: {exc}") from exc
+        report = getattr(module, "report", None)
+        if not callable(report):
+            raise MksError(f"paper section {name!r} has no report() -> (text, dict)")
+        text, data = report()
+        clash = sorted(set(merged) & set(data))
+        if clash:
+            raise MksError(f"paper section {name!r} repeats JSON key(s) {clash}")
+        texts.append(text.rstrip())
+        merged.update(data)
+    return "\n\n".join(texts), merged
 
 
 def run(args: argparse.Namespace) -> int:
-    raise MksError("`mks-sim paper` is not built yet")
+    sections = tuple(args.section) if args.section else SECTIONS
+    text, data = assemble(sections)
+    if args.json:
+        json.dump(data, sys.stdout, indent=2, sort_keys=False)
+        sys.stdout.write("\n")
+    else:
+        sys.stdout.write(text + "\n")
+    return 0
