@@ -212,18 +212,10 @@ def score_pose(
     return frac * float(np.exp(-0.5 * (rmse / inlier_distance) ** 2)), frac, rmse
 
 
-def _same_pose(
-    A: FloatArray,
-    B: FloatArray,
-    symmetries: FloatArray,
-    rotation_tol_deg: float,
-    translation_tol: float,
-) -> bool:
-    if np.linalg.norm(A[:3, 3] - B[:3, 3]) > translation_tol:
-        return False
-    # A = B @ S (S about the model origin): R_A = R_B S.
-    rel = B[:3, :3].T @ A[:3, :3]
-    return any(rotation_angle_deg(rel, S) <= rotation_tol_deg for S in symmetries)
+def _angles_deg(R: FloatArray, rotations: FloatArray) -> FloatArray:
+    """(S,) angles (degrees) between R (3, 3) and each of (S, 3, 3) rotations."""
+    cos = (np.einsum("sij,ij->s", rotations, R) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 def _with_identity(symmetries: ArrayLike | None) -> FloatArray:
@@ -239,7 +231,7 @@ def _with_identity(symmetries: ArrayLike | None) -> FloatArray:
 def _matching_symmetry(A: FloatArray, B: FloatArray, syms: FloatArray) -> FloatArray:
     """The symmetry S with R_A ~ R_B S."""
     rel = B[:3, :3].T @ A[:3, :3]
-    return syms[int(np.argmin([rotation_angle_deg(rel, S) for S in syms]))]
+    return syms[int(np.argmin(_angles_deg(rel, syms)))]
 
 
 def _symmetric_images(T: FloatArray, related: list[FloatArray]) -> FloatArray:
@@ -277,16 +269,23 @@ def group_equivalent(
         (H,) int label = index of the first (best) pose of its group.
     """
     syms = _with_identity(symmetries)
-    mats = [np.asarray(m, dtype=np.float64) for m in matrices]
+    mats = np.asarray([np.asarray(m, dtype=np.float64) for m in matrices]).reshape(-1, 4, 4)
     labels = np.arange(len(mats))
     reps: list[int] = []
+    cos_tol = np.cos(np.radians(rotation_tol_deg))
     for i, M in enumerate(mats):
-        for r in reps:
-            if _same_pose(M, mats[r], syms, rotation_tol_deg, translation_tol):
-                labels[i] = r
-                break
-        else:
-            reps.append(i)
+        if reps:
+            R_reps = mats[reps, :3, :3]  # (r, 3, 3)
+            near = np.linalg.norm(mats[reps, :3, 3] - M[:3, 3], axis=1) <= translation_tol
+            if near.any():
+                # R_M = R_rep S  <=>  trace(S^T R_rep^T R_M) = 1 + 2 cos(angle)
+                rel = np.einsum("rji,jk->rik", R_reps[near], M[:3, :3])  # (r', 3, 3)
+                cos = (np.einsum("sij,rij->rs", syms, rel) - 1.0) / 2.0  # (r', S)
+                hit = np.flatnonzero(cos.max(axis=1) >= cos_tol)
+                if hit.size:
+                    labels[i] = np.asarray(reps)[near][hit[0]]
+                    continue
+        reps.append(i)
     return labels
 
 
@@ -327,6 +326,7 @@ def verify_hypotheses(
     symmetries: ArrayLike | None = None,
     max_icp: int = 20,
     icp_iterations: int = 30,
+    full_refine: int = 4,
     max_scene_points: int = 3000,
     rng: np.random.Generator | None = None,
 ) -> list[VerifiedHypothesis]:
@@ -341,7 +341,9 @@ def verify_hypotheses(
         symmetries: (S, 3, 3) model symmetries for grouping.
         max_icp: refine at most this many initial poses (the most voted, after merging
             initial poses that are already equivalent).
-        icp_iterations: ICP iteration cap.
+        icp_iterations: ICP iteration cap of the full refinement.
+        full_refine: fully refine this many starts (best after 8 coarse ICP iterations on
+            1000 scene points); the others keep their coarse pose and score.
         max_scene_points: ICP and scoring use a random subset of at most this many points.
         rng: generator for that subset (default seeded 0).
 
@@ -366,19 +368,39 @@ def verify_hypotheses(
         [h.matrix for h in ordered], symmetries, rotation_tol_deg=8.0, translation_tol=0.05 * size
     )
     start_ids = [i for i in range(len(ordered)) if init_labels[i] == i][:max_icp]
-    refined: list[tuple[PoseHypothesis, float, list[FloatArray]]] = []
+    # Two stages: a few coarse ICP iterations on a subset for every start, then full
+    # refinement of the most promising ones only.
+    coarse_scene = scene[rng.permutation(len(scene))[:1000]]
+    coarse: list[tuple[float, int, FloatArray]] = []
     for i in start_ids:
-        h = ordered[i]
         icp = icp_point_to_plane(
-            surface, scene, h.matrix, max_distance=gate, max_iterations=icp_iterations
+            surface, coarse_scene, ordered[i].matrix, max_distance=gate, max_iterations=8
         )
-        score, frac, rmse = score_pose(surface, scene, icp.matrix, inlier_distance)
+        coarse.append(
+            (score_pose(surface, coarse_scene, icp.matrix, inlier_distance)[0], i, icp.matrix)
+        )
+    coarse.sort(key=lambda c: -c[0])
+    refined: list[tuple[PoseHypothesis, float, list[FloatArray]]] = []
+    for rank, (_, i, T_coarse) in enumerate(coarse):
+        h = ordered[i]
+        if rank < full_refine:
+            icp = icp_point_to_plane(
+                surface, scene, T_coarse, max_distance=gate, max_iterations=icp_iterations
+            )
+            T_new = icp.matrix
+        else:
+            T_new = T_coarse
+        score, frac, rmse = score_pose(surface, scene, T_new, inlier_distance)
         related = [
             _matching_symmetry(ordered[k].matrix, h.matrix, syms)
             for k in range(len(ordered))
             if init_labels[k] == i and k != i
         ]
-        refined.append((replace(h, matrix=icp.matrix, rmse=rmse, score=score), frac, related))
+        # The reference point moves with the model: p_ref_model = T_init^-1 p_ref.
+        ref_model = invert(h.matrix)[:3, :3] @ h.reference_point + invert(h.matrix)[:3, 3]
+        ref = T_new[:3, :3] @ ref_model + T_new[:3, 3]
+        moved = replace(h, matrix=T_new, reference_point=ref, rmse=rmse, score=score)
+        refined.append((moved, frac, related))
     refined.sort(key=lambda hf: (-hf[0].score, hf[0].rmse))
     labels = group_equivalent(
         [h.matrix for h, _, _ in refined],

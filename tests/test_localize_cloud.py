@@ -1,0 +1,251 @@
+"""The localize_cloud pipeline and `mks-sim localize-cloud`, against synthetic ground truth."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from mks_sim.cli import main
+from mks_sim.errors import DataError, NotFound
+from mks_sim.geometry.meshes import (
+    box_mesh,
+    industrial_part_control_points,
+    industrial_part_mesh,
+    sample_surface,
+)
+from mks_sim.geometry.scan import synthetic_scan
+from mks_sim.geometry.transforms import (
+    apply,
+    cube_rotations,
+    make_transform,
+    pose_error,
+    random_rotation,
+)
+from mks_sim.io.mesh import write_stl
+from mks_sim.io.pointcloud import write_ply
+from mks_sim.localize import (
+    LocalizableModel,
+    PolyhedralModel,
+    load_model,
+    localize_cloud,
+)
+from mks_sim.models.pose import PoseHypothesis
+
+SIZE = 0.05  # 5 cm cube, metres
+TABLE = (box_mesh((0.6, 0.6, 0.02)), make_transform(np.eye(3), [0.0, 0.0, -0.01]))
+EYES = [np.array([0.35, 0.25, 0.4]), np.array([-0.3, 0.3, 0.45])]
+
+
+def _rot_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@pytest.fixture(scope="module")
+def cube_model() -> PolyhedralModel:
+    return PolyhedralModel.from_mesh(box_mesh(SIZE), "cube")
+
+
+def _table_scan(mesh, T, eye, rng, noise=0.0002, width=200, height=150):
+    return synthetic_scan(
+        mesh, T, eye, [0.0, 0.0, 0.0], width=width, height=height, fov_deg=30,
+        noise_sigma=noise, rng=rng, extra=[TABLE],
+    )  # fmt: skip
+
+
+def test_polyhedral_model_of_a_cube(cube_model: PolyhedralModel) -> None:
+    assert len(cube_model.corners) == 8
+    assert len(cube_model.faces) == 6
+    assert len(cube_model.symmetry_rotations) == 23  # the cube group minus the identity
+    assert isinstance(cube_model, LocalizableModel)
+    part = PolyhedralModel.from_mesh(industrial_part_mesh(), "part")
+    assert part.symmetries() is None  # "No rotational symmetry" (meshes.py)
+    # every control point of H's recipe is a model corner where three faces meet
+    cp = industrial_part_control_points()
+    d = np.linalg.norm(cp[:, None] - part.vertexes[None], axis=2).min(axis=1)
+    assert d.max() < 1e-9
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_full_cloud_random_rotation_modulo_cube_symmetry(
+    cube_model: PolyhedralModel, seed: int
+) -> None:
+    rng = np.random.default_rng(100 + seed)
+    T = make_transform(random_rotation(rng), rng.uniform(-0.2, 0.2, 3))
+    pts = apply(T, sample_surface(box_mesh(SIZE), 2500, rng=rng)[0])
+    pts += rng.normal(0.0, 0.0002, pts.shape)
+    loc = localize_cloud(cube_model, pts, table="none")
+    assert loc.found and loc.best is not None
+    pos, rot = pose_error(loc.best.matrix, T, cube_rotations())
+    assert rot < 1.0 and pos < 0.001
+    assert loc.table is None and len(loc.segments) == 1
+    assert len(loc.equivalents[0]) == 23  # all 24 placements proposed, reported once
+    for E in loc.equivalents[0]:
+        assert pose_error(E, T, cube_rotations())[1] < 1.0
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_one_sided_scan_on_table(cube_model: PolyhedralModel, seed: int) -> None:
+    rng = np.random.default_rng(200 + seed)
+    T = make_transform(_rot_z(rng.uniform(0, 2 * np.pi)), [*rng.uniform(-0.05, 0.05, 2), SIZE / 2])
+    eye = EYES[seed]
+    pts = _table_scan(box_mesh(SIZE), T, eye, rng)
+    loc = localize_cloud(cube_model, pts, viewpoint=eye)
+    assert loc.table is not None and abs(loc.table.normal[2]) > 0.999
+    assert loc.table.offset == pytest.approx(0.0, abs=0.0005)
+    assert loc.found
+    assert loc.segments[0].on_table
+    pos, rot = pose_error(loc.best.matrix, T, cube_rotations())
+    assert rot < 1.0 and pos < 0.001
+
+
+def test_industrial_part_one_sided_and_control_points_recoverable() -> None:
+    part = industrial_part_mesh()
+    model = PolyhedralModel.from_mesh(part, "part")
+    cp = industrial_part_control_points()
+    rng = np.random.default_rng(300)
+    T = make_transform(_rot_z(0.7), [0.01, -0.02, 0.0])
+    recovered = np.full(4, np.inf)
+    # From one oblique view a control point is recovered when its three faces are in view;
+    # the four oblique views around the part recover all four.
+    for sx, sy in ((-1, -1), (-1, 1), (1, -1), (1, 1)):
+        eye_obj = np.array([0.3 * sx, 0.25 * sy, 0.4])
+        eye = apply(T, eye_obj[None])[0]
+        pts = synthetic_scan(
+            part, T, eye, apply(T, np.array([[0.0, 0.0, 0.01]]))[0], width=240, height=180,
+            fov_deg=25, noise_sigma=0.0002, rng=rng, extra=[TABLE],
+        )  # fmt: skip
+        loc = localize_cloud(model, pts, viewpoint=eye)
+        assert loc.found
+        pos, rot = pose_error(loc.best.matrix, T)
+        assert rot < 1.0 and pos < 0.001
+        v = loc.segments[0].vertexes.points
+        d = np.linalg.norm(apply(T, cp)[:, None] - v[None], axis=2).min(axis=1)
+        recovered = np.minimum(recovered, d)
+    assert recovered.max() < 0.001
+
+
+@dataclass(frozen=True)
+class _OracleModel:
+    """A protocol model whose hypotheses are perturbed truths (tests the ICP path)."""
+
+    name: str
+    truth: np.ndarray
+    pts: np.ndarray
+    nrm: np.ndarray
+
+    def hypotheses(self, scene_points, scene_normals):
+        T = self.truth.copy()
+        T[:3, 3] += [0.003, -0.002, 0.001]
+        return [PoseHypothesis(T, T[:3, 3], votes=1)]
+
+    def surface_points(self):
+        return self.pts
+
+    def surface_normals(self):
+        return self.nrm
+
+    def symmetries(self):
+        return None
+
+
+def test_protocol_model_is_refined_by_the_pipeline() -> None:
+    rng = np.random.default_rng(400)
+    mesh = industrial_part_mesh()
+    T = make_transform(random_rotation(rng), [0.1, 0.0, 0.2])
+    pts, nrm = sample_surface(mesh, 3000, rng=rng)
+    model = _OracleModel("oracle", T, pts, nrm)
+    assert isinstance(model, LocalizableModel)
+    scene = apply(T, sample_surface(mesh, 2000, rng=rng)[0])
+    loc = localize_cloud(model, scene, table="none")
+    assert loc.found
+    pos, rot = pose_error(loc.best.matrix, T)
+    assert pos < 0.0005 and rot < 0.5
+
+
+def test_nan_points_are_dropped_and_counted(cube_model: PolyhedralModel) -> None:
+    rng = np.random.default_rng(500)
+    T = make_transform(random_rotation(rng), [0.0, 0.0, 0.0])
+    pts = apply(T, sample_surface(box_mesh(SIZE), 2000, rng=rng)[0])
+    pts[::10] = np.nan
+    loc = localize_cloud(cube_model, pts, table="none")
+    assert loc.dropped_nan == 200 and loc.found
+
+
+def test_scale_maps_a_millimetre_model_to_a_metre_scene() -> None:
+    model_mm = PolyhedralModel.from_mesh(box_mesh(SIZE * 1000), "cube_mm")
+    rng = np.random.default_rng(600)
+    T = make_transform(random_rotation(rng), [0.1, 0.2, 0.3])
+    pts = apply(T, sample_surface(box_mesh(SIZE), 2000, rng=rng)[0])
+    loc = localize_cloud(model_mm, pts, scale=0.001, table="none")
+    assert loc.found
+    pos, rot = pose_error(loc.best.matrix, T, cube_rotations())
+    assert pos < 0.001 and rot < 1.0
+
+
+def test_cli_localize_cloud_json_against_known_pose(tmp_path, capsys) -> None:
+    rng = np.random.default_rng(700)
+    T = make_transform(_rot_z(0.4), [0.01, 0.02, SIZE / 2])
+    eye = EYES[0]
+    pts = _table_scan(box_mesh(SIZE), T, eye, rng)
+    pts[::40] = np.nan  # a sensor's misses
+    scene = tmp_path / "scan.ply"
+    write_ply(scene, pts)
+    model = tmp_path / "cube.stl"
+    write_stl(model, box_mesh(SIZE))
+    code = main(["localize-cloud", "--model", str(model), "--scene", str(scene), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["found"] is True
+    assert out["dropped_nan"] == int(np.isnan(pts[:, 0]).sum())
+    best = out["hypotheses"][0]
+    assert set(best) >= {"matrix", "votes", "score", "rmse"}
+    M = np.array(best["matrix"])
+    assert M.shape == (4, 4) and np.allclose(M[3], [0, 0, 0, 1])
+    pos, rot = pose_error(M, T, cube_rotations())
+    assert rot < 1.0 and pos < 0.001
+    # text output
+    assert main(["localize-cloud", "--model", str(model), "--scene", str(scene)]) == 0
+    assert "FOUND" in capsys.readouterr().out
+
+
+def test_cli_bad_inputs_exit_2_with_a_message(tmp_path, capsys) -> None:
+    model = tmp_path / "cube.stl"
+    write_stl(model, box_mesh(SIZE))
+    bad = tmp_path / "bad.ply"
+    bad.write_text("this is not a ply file\n")
+    empty = tmp_path / "empty.npy"
+    np.save(empty, np.zeros((0, 3)))
+    cases = [
+        (["--model", str(model), "--scene", str(tmp_path / "missing.ply")], "not found"),
+        (["--model", str(model), "--scene", str(bad)], "bad.ply"),
+        (["--model", str(model), "--scene", str(empty)], "points"),
+        (["--model", str(tmp_path / "nope.stl"), "--scene", str(bad)], "not found"),
+        (["--model", "no_such_model", "--scene", str(bad)], "no_such_model"),
+        (["--model", str(model), "--scene", str(bad), "--scale", "-1"], "scale"),
+    ]
+    for args, message in cases:
+        assert main(["localize-cloud", *args]) == 2
+        err = capsys.readouterr().err
+        assert "error" in err and message in err and "Traceback" not in err
+
+
+def test_library_bad_inputs(cube_model: PolyhedralModel) -> None:
+    with pytest.raises(DataError, match=r"expected \(N, 3\)"):
+        localize_cloud(cube_model, np.zeros((10, 2)))
+    with pytest.raises(DataError, match="at least 10 finite"):
+        localize_cloud(cube_model, np.full((50, 3), np.nan))
+    with pytest.raises(DataError, match="table must be"):
+        localize_cloud(cube_model, np.zeros((20, 3)), table="sometimes")  # type: ignore[arg-type]
+    with pytest.raises(NotFound, match="not found"):
+        load_model("/nonexistent/model.stl")
+    with pytest.raises(DataError, match="LocalizableModel"):
+        localize_cloud(object(), np.zeros((20, 3)))
+    with pytest.raises(DataError, match="vertexes"):
+        PolyhedralModel.from_vertexes(np.zeros((3, 3)))
+    # nothing there: not found, no exception
+    rng = np.random.default_rng(0)
+    loc = localize_cloud(cube_model, rng.uniform(-1, 1, (300, 3)), table="none")
+    assert not loc.found
