@@ -167,3 +167,40 @@ def test_workstation_feature_models_pick_their_objects() -> None:
     )
     nut = rows[db.get("square_nut").matches(rows)]
     assert len(nut) == 1 and np.hypot(nut[0, 0] + 0.15, nut[0, 1] - 0.1) < 0.005
+
+
+@pytest.mark.slow
+def test_scene1_overhead_camera_matches_the_manifest() -> None:
+    from mks_sim.devices import make_devices
+    from mks_sim.models.database import ModelDatabase
+    from mks_sim.sensing import SensorGraph
+    from mks_sim.sim import truth
+    from mks_sim.sim.world import build_world
+
+    db, graph = ModelDatabase.from_dir(), SensorGraph.from_dir()
+    for seed in (None, 2):
+        world = build_world("scene1", seed=seed)
+        manifest = truth.scene1_manifest(world)
+        with make_devices(
+            world.model, world.data, np.random.default_rng(0), names=["overhead_camera"]
+        ) as devs:
+            snap = graph.snapshot(devs)
+            circles = snap.get("Circle_Detector").data
+            shapes = snap.get("Corner_Holes_Detector").data
+        assert len(shapes) == len(manifest) == len(circles)
+        for part in manifest:
+            i = np.argmin(
+                np.hypot(shapes[:, 0] - part.xy_world[0], shapes[:, 1] - part.xy_world[1])
+            )
+            assert np.hypot(*(shapes[i, :2] - part.xy_world)) < 0.002, part.name
+            assert (shapes[i, 2], shapes[i, 3]) == (part.corners, part.holes), part.name
+            if part.radius_m > 0:
+                assert circles[i, 2] == pytest.approx(part.radius_m, abs=0.001), part.name
+            elif part.holes == 0:
+                assert circles[i, 2] == 0.0, part.name
+        nut = shapes[db.get("square_nut").matches(shapes)]
+        (square,) = [p for p in manifest if p.kind == "square_nut"]
+        assert len(nut) == 1 and np.hypot(*(nut[0, :2] - square.xy_world)) < 0.002
+        discs = circles[db.get("disc_2cm").matches(circles)]
+        expected = [p for p in manifest if abs(p.radius_m - 0.02) < 1e-9]
+        assert len(discs) == len(expected) == 1

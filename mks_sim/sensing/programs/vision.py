@@ -14,8 +14,10 @@ object with ``rgb``, ``K`` and ``camera_to_world``) and report one row per objec
    in the world frame. Centroid and area come from the metric polygon (shoelace), the radius
    from the area (``sqrt(A / pi)``), which is unbiased by pixel digitisation.
 4. A contour is a circle when its largest radial deviation from the centroid, relative to its
-   radius, is at most ``circle_tolerance + 1 / r_px`` (the second term allows for digitisation
-   at small sizes). Corners: 0 for a circle (Table 4-3 of the paper gives discs 0 corners),
+   radius, is at most ``circle_tolerance + circle_pixel_slack / r_px`` (the second term allows
+   for digitisation at small sizes: a rendered 10 px disc deviates by ~0.14, a 14 px hexagon
+   by ~0.2, a 5 px hole by up to ~0.3; defaults 0.04 and 1.5). Holes smaller than
+   ``min_shape_px`` (8 px radius) count as circles: too small to tell, and drilled in practice. Corners: 0 for a circle (Table 4-3 of the paper gives discs 0 corners),
    else the vertex count of ``approxPolyDP`` with ``epsilon = poly_epsilon * perimeter``.
 
 ``circle_detector`` -> (x, y, radius): ``radius`` of the object if it is a circle, else of its
@@ -46,6 +48,8 @@ DEFAULTS: dict[str, Any] = {
     "min_area_px": 30,
     "min_hole_area_px": 8,
     "circle_tolerance": 0.04,
+    "circle_pixel_slack": 1.5,
+    "min_shape_px": 8.0,
     "poly_epsilon": 0.03,
     "ignore_border": True,
     "report_all": True,
@@ -151,8 +155,15 @@ def _contour_shape(
     radius = float(np.sqrt(area / np.pi)) - (pixel_m if hole else 0.0)
     d = np.hypot(world[:, 0] - cx, world[:, 1] - cy)
     r_px = np.sqrt(area_px / np.pi) + 0.5
+    # A hole below min_shape_px radius is too small to tell a circle from a polygon; holes in
+    # the workstation's parts are drilled bores, so it counts as a circle.
     circular = bool(
-        radius > 0 and (d.max() - d.min()) / radius <= params["circle_tolerance"] + 1.0 / r_px
+        radius > 0
+        and (
+            (d.max() - d.min()) / radius
+            <= params["circle_tolerance"] + params["circle_pixel_slack"] / r_px
+            or (hole and r_px < params["min_shape_px"])
+        )
     )
     if circular:
         corners = 0
