@@ -45,3 +45,17 @@ def test_set_object_pose_rejects_bad_matrix(scene2) -> None:
         scene2.set_object_pose(names.CUBE, np.full((4, 4), np.nan))
     with pytest.raises(NotFound, match="no movable object 'table'"):
         scene2.set_object_pose("table", np.eye(4))
+
+
+def test_export_scene_loads_in_plain_mujoco(tmp_path, scene2) -> None:
+    import mujoco
+
+    from mks_sim.sim.scenes import export_scene
+
+    path = export_scene("scene2", tmp_path)
+    model = mujoco.MjModel.from_xml_path(str(path))
+    assert (model.nbody, model.nsensor, model.ncam) == (
+        scene2.model.nbody,
+        scene2.model.nsensor,
+        scene2.model.ncam,
+    )

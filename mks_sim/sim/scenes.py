@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from dm_control import mjcf
@@ -278,3 +279,20 @@ def build_scene(name: str) -> SceneSpec:
     except KeyError:
         raise NotFound(f"unknown scene {name!r}; expected one of {sorted(_SCENES)}") from None
     return builder()
+
+
+def export_scene(name: str, out_dir: str | Path) -> Path:
+    """Write scene ``name`` as a standalone MJCF (+ the robot's mesh files) to ``out_dir``.
+
+    For viewing and debugging outside mks_sim, e.g.
+    ``python -m mujoco.viewer --mjcf=<out_dir>/<name>.xml``. The objects are at the scene's
+    default layout; ``World`` state (arm home pose, randomisation) is not part of the file.
+
+    Returns:
+        Path of the written XML file.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    spec = build_scene(name)
+    mjcf.export_with_assets(spec.root, str(out), out_file_name=f"{name}.xml")
+    return out / f"{name}.xml"
