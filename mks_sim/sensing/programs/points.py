@@ -264,7 +264,7 @@ def object_vertexes(cloud: np.ndarray, params: Mapping[str, Any]) -> Any:
     from mks_sim.lowlevel.grouping import plane_vertexes
 
     seg = _segment(cloud, params)
-    tol = float(params.get("vertex_tolerance_m", 0.0)) or 3.0 * max(seg.spacing, 1e-4)
+    tol = float(params.get("vertex_tolerance_m", 0.0)) or 4.0 * max(seg.spacing, 1e-4)
     verts = plane_vertexes(
         seg.planes, cloud, extra_planes=[_table_plane(params)], tolerance=tol,
         min_angle_deg=float(params.get("min_angle_deg", 30.0)),
