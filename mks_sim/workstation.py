@@ -1,0 +1,498 @@
+"""Localization at the workstation, end to end from simulated sensors (paper section 4).
+
+:func:`localize_object` runs the paper's execution flow (section 4, steps 1-7) for one object:
+
+1. **Invoke the model.** The object's model comes from the model database
+   (``tasks/models/*.toml``: ``cube`` -> ``cube_5cm``, ``sphere`` -> ``sphere_3cm``,
+   ``part`` -> ``part``); the model names its logical sensor.
+2. **Activate the logical sensors it needs** through a :class:`~mks_sim.sensing.SensorGraph`
+   snapshot on the devices: only the model's sensor and its inputs
+   (``graph.required([sensor])``) run; a failed device is replaced by the sensor's alternate
+   (``Range_Points`` served by ``Stereo_Points`` when the range finder fails), which the
+   snapshot's provenance reports. Ground truth is never read.
+3. **k-d tree and SPG** of the 3-D points (``Range_Points``); the supporting table plane is
+   found by RANSAC and removed, the rest splits into objects by SPG connectivity.
+4. **Grouping**: normals, planar regions, vertexes (the table is the face an object rests on);
+   curved regions and their sphere fits for the sphere (``Sphere_Detector``).
+5. **Matching**: vertex-frame Hough votes / the rotation-invariant Hough of section 2.2.1 for the
+   polyhedral models (cube, industrial part, :func:`mks_sim.localize.localize_cloud`); the
+   sphere model picks the ``Sphere_Detector`` rows of its radius.
+6. **Refinement**: point-to-plane ICP (cube, part) or a geometric sphere fit to the points
+   near the detected sphere, and a scene-consistency check of every candidate (no sensed point
+   inside the posed model or seen through it, no penetration of the table) that picks the
+   candidate explaining the most points.
+7. **Report** the transformation ``object_to_world`` (4x4, column convention, metres) of the
+   object's BODY frame — the frame :mod:`mks_sim.sim.truth` reports: the cube's and the
+   sphere's centre, the industrial part's bottom-face centre (``industrial_part_mesh``).
+
+Example:
+    >>> import numpy as np
+    >>> from mks_sim.sim.world import build_world
+    >>> from mks_sim.devices import make_devices
+    >>> from mks_sim.workstation import localize_object
+    >>> world = build_world("scene2", seed=1)
+    >>> with make_devices(world.model, world.data, np.random.default_rng(1)) as devices:
+    ...     result = localize_object(world, "cube", devices)  # doctest: +SKIP
+    >>> result.object_to_world  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from mks_sim.errors import DataError, MksError, NotFound, SensorFailure
+from mks_sim.models.pose import PoseHypothesis
+
+if TYPE_CHECKING:
+    from mks_sim.lowlevel.grouping import Plane
+    from mks_sim.models.database import ModelDatabase
+    from mks_sim.sensing import SensorGraph
+
+__all__ = [
+    "OBJECT_MODELS",
+    "OBJECT_SCENES",
+    "WorkstationLocalization",
+    "localize",
+    "localize_object",
+]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+
+#: object name -> model-database name.
+OBJECT_MODELS: dict[str, str] = {"cube": "cube_5cm", "sphere": "sphere_3cm", "part": "part"}
+#: object name -> the scene it is localized in (CLI, benchmark).
+OBJECT_SCENES: dict[str, str] = {"cube": "scene2", "sphere": "scene2", "part": "part"}
+#: The logical sensor a built-in model names (used when the database has no entry yet).
+_BUILTIN_SENSORS: dict[str, str] = {
+    "cube": "Vertex_Detector",
+    "sphere": "Sphere_Detector",
+    "part": "Control_Point_Detector",
+}
+POINTS_SENSOR = "Range_Points"
+SPHERE_SENSOR = "Sphere_Detector"
+MIN_EXPLAINED_SPHERE_M = 0.01  # spheres at least this large are set aside for polyhedra
+TABLE_Z_M = 0.75  # nominal table height: a sensor calibration parameter (sensors/points.toml)
+
+
+@dataclass(frozen=True, eq=False)
+class WorkstationLocalization:
+    """Result of :func:`localize_object`.
+
+    Attributes:
+        object: ``cube`` | ``sphere`` | ``part``.
+        found: a candidate passed verification.
+        object_to_world: (4, 4) column-convention pose of the object's body frame in the world
+            frame (metres), or None when not found.
+        hypotheses: verified candidates, best first (``matrix`` model -> world).
+        provenance: logical sensor -> the way that served it (``"primary"`` or an alternate's
+            name, e.g. ``{"Range_Points": "Stereo_Points"}``).
+        time_s: wall-clock seconds of the whole flow (sensing included).
+        diagnostics: model name and source, sensors run, point counts, per-stage seconds,
+            candidate checks.
+    """
+
+    object: str
+    found: bool
+    object_to_world: FloatArray | None
+    hypotheses: tuple[PoseHypothesis, ...]
+    provenance: dict[str, str]
+    time_s: float
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def matrix(self) -> FloatArray | None:
+        """Alias of :attr:`object_to_world`."""
+        return self.object_to_world
+
+
+# --------------------------------------------------------------------------- resources
+
+
+@functools.lru_cache(maxsize=1)
+def _default_graph() -> SensorGraph:
+    from mks_sim.sensing import SensorGraph
+
+    return SensorGraph.from_dir()
+
+
+@functools.lru_cache(maxsize=1)
+def _default_db() -> ModelDatabase:
+    from mks_sim.models.database import ModelDatabase
+
+    return ModelDatabase.from_dir()
+
+
+@functools.lru_cache(maxsize=4)
+def _builtin_model(obj: str) -> Any:
+    """A built-in polyhedral model in the object's body frame (database entry missing)."""
+    from mks_sim.geometry.meshes import box_mesh, industrial_part_mesh
+    from mks_sim.localize import PolyhedralModel
+    from mks_sim.sim import names
+
+    if obj == "cube":
+        return PolyhedralModel.from_mesh(box_mesh(names.CUBE_SIZE_M), "cube_5cm")
+    if obj == "part":
+        return PolyhedralModel.from_mesh(industrial_part_mesh(), "part")
+    from mks_sim.models.sphere import SphereModel
+
+    return SphereModel("sphere_3cm", names.SPHERE_RADIUS_M, 0.004)
+
+
+@functools.lru_cache(maxsize=8)
+def _adapted(obj: str, model_name: str, entry_id: int, entry: Any) -> Any:
+    del entry_id
+    from mks_sim.localize import adapt_model
+    from mks_sim.models.sphere import SphereModel
+
+    if isinstance(entry, SphereModel):
+        return entry
+    return adapt_model(entry, model_name)
+
+
+def _resolve_model(obj: str, db: ModelDatabase | None) -> tuple[str, Any, str, str]:
+    """(model name, localizable model, its logical sensor, source ``database``|``builtin``)."""
+    model_name = OBJECT_MODELS[obj]
+    try:
+        entry = (db if db is not None else _default_db()).get(model_name)
+    except NotFound:
+        entry = None
+    if entry is None:
+        log.info("model %r not in the model database; using the built-in model", model_name)
+        return model_name, _builtin_model(obj), _BUILTIN_SENSORS[obj], "builtin"
+    sensor = getattr(entry, "sensor", None) or _BUILTIN_SENSORS[obj]
+    try:
+        model = _adapted(obj, model_name, id(entry), entry)
+    except (MksError, TypeError) as exc:
+        log.warning(
+            "model %r: database entry unusable (%s); using the built-in model", model_name, exc
+        )
+        return model_name, _builtin_model(obj), sensor, "builtin"
+    return model_name, model, str(sensor), "database"
+
+
+# --------------------------------------------------------------------------- the flow
+
+
+def localize_object(
+    world: Any,
+    object_name: str,
+    devices: Mapping[str, Any],
+    *,
+    rng: np.random.Generator | None = None,
+    graph: SensorGraph | None = None,
+    db: ModelDatabase | None = None,
+) -> WorkstationLocalization:
+    """Localize one object from the devices' readings (paper section 4, steps 1-7).
+
+    Args:
+        world: the simulated world (unused by the flow itself: sensing goes through
+            ``devices``; kept so the signature matches the grasp episode's ``localize_fn``).
+        object_name: ``cube`` | ``sphere`` | ``part``.
+        devices: device name -> device (``mks_sim.devices.make_devices``); failed or missing
+            devices are replaced by the logical sensors' alternates.
+        rng: generator for RANSAC and subsampling (default seeded 0).
+        graph: the logical sensors (default ``SensorGraph.from_dir()``).
+        db: the model database (default ``ModelDatabase.from_dir()``).
+
+    Returns:
+        :class:`WorkstationLocalization` (``found`` False when no candidate passes).
+
+    Raises:
+        NotFound: unknown object name.
+        SensorFailure: the points sensor and all its alternates failed.
+    """
+    del world  # sensing goes through the devices only; never ground truth
+    t0 = time.perf_counter()
+    if object_name not in OBJECT_MODELS:
+        raise NotFound(
+            f"localize_object: unknown object {object_name!r}; expected one of "
+            f"{sorted(OBJECT_MODELS)}"
+        )
+    rng = np.random.default_rng(0) if rng is None else rng
+    graph = graph if graph is not None else _default_graph()
+    timing: dict[str, float] = {}
+
+    # 1. the model from the database; it names its logical sensor
+    t = time.perf_counter()
+    model_name, model, sensor, source = _resolve_model(object_name, db)
+    timing["model"] = time.perf_counter() - t
+    diag: dict[str, Any] = {"model": model_name, "model_source": source, "sensor": sensor}
+
+    # 2. activate only the logical sensors the model needs
+    t = time.perf_counter()
+    snap = graph.snapshot(devices)
+    try:
+        diag["sensors_required"] = sorted(graph.required([sensor]))
+    except MksError:
+        diag["sensors_required"] = [sensor]
+    stream = snap.get(POINTS_SENSOR)
+    points = np.asarray(stream.data, dtype=np.float64)[:, :3]
+    points = points[np.all(np.isfinite(points), axis=1)]
+    timing["sensing"] = time.perf_counter() - t
+    diag["points"] = len(points)
+    if len(points) < 50:
+        raise SensorFailure(POINTS_SENSOR, f"expected >= 50 points, got {len(points)}")
+
+    if object_name == "sphere":
+        hyps, extra = _localize_sphere(model, snap, sensor, points, rng, timing)
+    else:
+        hyps, extra = _localize_polyhedral(model, snap, sensor, points, rng, timing)
+    diag.update(extra)
+    diag["timing"] = timing
+    provenance = dict(snap.provenance)
+    found = bool(hyps)
+    T = np.asarray(hyps[0].matrix, dtype=np.float64) if found else None
+    total = time.perf_counter() - t0
+    log.info(
+        "localize_object(%s): found=%s via %s in %.2f s (%s)",
+        object_name,
+        found,
+        provenance.get(POINTS_SENSOR, "?"),
+        total,
+        model_name,
+    )
+    return WorkstationLocalization(
+        object=object_name,
+        found=found,
+        object_to_world=T,
+        hypotheses=tuple(hyps),
+        provenance=provenance,
+        time_s=total,
+        diagnostics=diag,
+    )
+
+
+#: Alias used by the grasp episode (``mks_sim.tasks.episode.sensor_localize_fn``).
+localize = localize_object
+
+
+def _noise_scale(points: FloatArray, table: Plane | None, spacing: float) -> float:
+    """Inlier distance for consistency checks: ~3 sigma of the table points, >= 3 mm."""
+    if table is not None:
+        d = np.abs(table.distance(points))
+        near = d[d < 0.01]
+        if len(near) > 50:
+            return float(max(0.003, 3.0 * np.sqrt(np.mean(near**2)), 1.5 * spacing))
+    return float(max(0.003, 1.5 * spacing))
+
+
+def find_table(points: FloatArray, rng: np.random.Generator) -> tuple[Plane | None, float]:
+    """The supporting plane (normal up, towards the sensors) and its inlier threshold.
+
+    RANSAC near the nominal table height (a sensor calibration parameter); None if no
+    horizontal plane holds at least 20 % of the points.
+    """
+    from mks_sim.lowlevel.grouping import Plane, fit_plane_ransac
+
+    low = points[np.abs(points[:, 2] - TABLE_Z_M) < 0.02]
+    if len(low) < max(50, 0.2 * len(points)):
+        return None, 0.0
+    plane, inl = fit_plane_ransac(low, 0.003, rng, iterations=100)
+    if plane.normal[2] < 0:
+        plane = plane.flipped()
+    if plane.normal[2] < 0.95:
+        return None, 0.0
+    resid = plane.distance(low[inl])
+    thr = float(max(0.003, 3.0 * np.sqrt(np.mean(resid**2))))
+    return Plane(plane.normal, plane.offset, float(np.sqrt(np.mean(resid**2)))), thr
+
+
+def _localize_polyhedral(
+    model: Any,
+    snap: Any,
+    sensor: str,
+    points: FloatArray,
+    rng: np.random.Generator,
+    timing: dict[str, float],
+) -> tuple[list[PoseHypothesis], dict[str, Any]]:
+    from mks_sim.localize import localize_cloud
+
+    extra: dict[str, Any] = {}
+    # 3. table plane, then the k-d tree / SPG / grouping / matching / ICP of localize_cloud
+    t = time.perf_counter()
+    table, table_thr = find_table(points, rng)
+    if table is not None:
+        objects = points[table.distance(points) > table_thr]
+    else:
+        objects = points
+    timing["table"] = time.perf_counter() - t
+    extra["table_z_m"] = None if table is None else float(table.offset / table.normal[2])
+    # Curved objects explained by the sphere detector (the Surface_Curvature grouping of
+    # Table 4-6) are set aside: a sphere resting on the cube would otherwise share its SPG
+    # component and crowd the vertex matcher with facets of the sphere.
+    try:
+        spheres = np.asarray(snap.get(SPHERE_SENSOR).data, dtype=np.float64).reshape(-1, 4)
+    except MksError as exc:
+        log.info("%s unavailable: %s", SPHERE_SENSOR, exc)
+        spheres = np.zeros((0, 4))
+    keep = np.ones(len(objects), dtype=bool)
+    for s in spheres:
+        if s[3] >= MIN_EXPLAINED_SPHERE_M:
+            shell = np.abs(np.linalg.norm(objects - s[:3], axis=1) - s[3])
+            keep &= shell > max(table_thr, 0.003) + 0.001
+    extra["spheres_set_aside"] = int((spheres[:, 3] >= MIN_EXPLAINED_SPHERE_M).sum())
+    objects = objects[keep]
+    extra["object_points"] = len(objects)
+    if len(objects) < 30:
+        return [], extra
+    loc = localize_cloud(
+        model,
+        objects,
+        table=table if table is not None else "none",
+        max_hypotheses=30,
+        min_score=0.0,
+        rng=rng,
+    )
+    for k, v in loc.timing.items():
+        if k != "total":
+            timing[k] = v
+    extra["segments"] = [len(s.indices) for s in loc.segments]
+    extra["candidates"] = len(loc.hypotheses)
+
+    # the model's own logical sensor (vertexes / control points): support of the estimate
+    t = time.perf_counter()
+    detected: FloatArray | None = None
+    try:
+        detected = np.asarray(snap.get(sensor).data, dtype=np.float64)[:, :3]
+    except MksError as exc:
+        log.info("logical sensor %s unavailable: %s", sensor, exc)
+    timing["model_sensor"] = time.perf_counter() - t
+    extra["detected_features"] = 0 if detected is None else len(detected)
+
+    # 6. scene consistency of every candidate over the whole cloud
+    t = time.perf_counter()
+    d = _noise_scale(points, table, loc.spacing)
+    surface_pts = np.asarray(model.surface_points(), dtype=np.float64)
+    surface_nrm = np.asarray(model.surface_normals(), dtype=np.float64)
+    checks = [
+        _consistency(h.matrix, surface_pts, surface_nrm, points, table, d) for h in loc.hypotheses
+    ]
+    timing["consistency"] = time.perf_counter() - t
+    order = sorted(
+        range(len(checks)),
+        key=lambda i: (not checks[i]["ok"], -checks[i]["explained"], -loc.hypotheses[i].score),
+    )
+    extra["inlier_distance_m"] = d
+    extra["checks"] = [checks[i] for i in order[:5]]
+    good = [loc.hypotheses[i] for i in order if checks[i]["ok"]]
+    if good and detected is not None and len(detected):
+        T = np.asarray(good[0].matrix)
+        model_feats = getattr(model, "vertexes", None)
+        if model_feats is not None:
+            mv = np.asarray(model_feats) @ T[:3, :3].T + T[:3, 3]
+            dist = cKDTree(detected).query(mv)[0]
+            extra["feature_support"] = int((dist < 4 * d).sum())
+    return good, extra
+
+
+def _consistency(
+    T: FloatArray,
+    surface_pts: FloatArray,
+    surface_nrm: FloatArray,
+    cloud: FloatArray,
+    table: Plane | None,
+    d: float,
+) -> dict[str, Any]:
+    """Does the posed model agree with what the sensors saw?
+
+    Counts, over the sensed points near the posed model: ``explained`` (within ``d`` of its
+    surface), ``inside`` (inside the model solid by more than ``d``: the sensor saw through
+    the object) and ``below`` (under the model in their vertical column: the overhead and
+    oblique sensors could not have seen them). ``penetration``: fraction of the model
+    surface below the table plane by more than ``d``.
+    """
+    R, t = T[:3, :3], T[:3, 3]
+    P = surface_pts @ R.T + t
+    N = surface_nrm @ R.T
+    centre = P.mean(axis=0)
+    radius = float(np.max(np.linalg.norm(P - centre, axis=1)))
+    near = cloud[np.linalg.norm(cloud - centre, axis=1) <= radius + 2 * d]
+    out: dict[str, Any] = {"explained": 0, "inside": 0, "below": 0, "penetration": 0.0}
+    if table is not None:
+        out["penetration"] = float(np.mean(table.distance(P) < -d))
+    if len(near):
+        dist, idx = cKDTree(P).query(near)
+        explained = dist <= d
+        sd = np.einsum("ij,ij->i", near - P[idx], N[idx])
+        inside = (~explained) & (sd < -d)
+        # vertical columns: a model surface point within d (xy) above an unexplained point
+        rest = np.flatnonzero(~explained & ~inside)
+        below = np.zeros(len(near), dtype=bool)
+        if len(rest):
+            tree2 = cKDTree(P[:, :2])
+            cols = tree2.query_ball_point(near[rest, :2], r=d)
+            zq = near[rest, 2]
+            for j, c in enumerate(cols):
+                if c and np.max(P[c, 2]) > zq[j] + 2 * d:
+                    below[rest[j]] = True
+        out["explained"] = int(explained.sum())
+        out["inside"] = int(inside.sum())
+        out["below"] = int(below.sum())
+    bad = out["inside"] + out["below"]
+    out["ok"] = bool(
+        out["explained"] >= 30
+        and bad <= 0.05 * max(out["explained"], 1)
+        and out["penetration"] <= 0.02
+    )
+    return out
+
+
+def _localize_sphere(
+    model: Any,
+    snap: Any,
+    sensor: str,
+    points: FloatArray,
+    rng: np.random.Generator,
+    timing: dict[str, float],
+) -> tuple[list[PoseHypothesis], dict[str, Any]]:
+    from mks_sim.lowlevel.grouping import fit_sphere
+
+    extra: dict[str, Any] = {}
+    t = time.perf_counter()
+    rows = np.asarray(snap.get(sensor).data, dtype=np.float64).reshape(-1, 4)
+    timing["model_sensor"] = time.perf_counter() - t
+    extra["detected_features"] = len(rows)
+    t = time.perf_counter()
+    match = model.match(rows) if hasattr(model, "match") else np.arange(len(rows))
+    extra["matched"] = len(match)
+    radius = float(model.radius_m)
+    table, table_thr = find_table(points, rng)
+    tree = cKDTree(points)
+    hyps: list[tuple[float, PoseHypothesis]] = []
+    for i in match:
+        c = rows[i, :3]
+        # 6. refine: geometric sphere fit to the points near the detected sphere's surface
+        for _ in range(3):
+            idx = tree.query_ball_point(c, r=radius * 1.25)
+            pts = points[idx]
+            if table is not None:
+                pts = pts[table.distance(pts) > table_thr]
+            shell = np.abs(np.linalg.norm(pts - c, axis=1) - radius) < max(0.004, 0.12 * radius)
+            if shell.sum() < 20:
+                break
+            try:
+                fit = fit_sphere(pts[shell])
+            except DataError:
+                break
+            if abs(fit.radius - radius) > model.tolerance_m:
+                break
+            c = fit.center
+        else:
+            T = np.eye(4)
+            T[:3, 3] = c
+            n_in = int(shell.sum())
+            h = PoseHypothesis(T, c.copy(), votes=n_in, rmse=fit.rmse, score=1.0)
+            hyps.append((n_in / max(fit.rmse, 1e-6), h))
+    timing["refinement"] = time.perf_counter() - t
+    hyps.sort(key=lambda x: -x[0])
+    return [h for _, h in hyps], extra
