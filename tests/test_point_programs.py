@@ -361,3 +361,40 @@ def test_sphere_model_entry_errors(tmp_path) -> None:
     )
     with pytest.raises(SpecError, match=r"unknown field\(s\) \['radius'\]"):
         ModelDatabase.from_files([bad])
+
+
+def test_outline_corners_of_a_sampled_l_shape() -> None:
+    from mks_sim.sensing.programs.points import outline_corners
+
+    rng = np.random.default_rng(5)
+    uv = rng.uniform(0, 0.06, (6000, 2))
+    uv = uv[~((uv[:, 0] > 0.03) & (uv[:, 1] > 0.03))]  # an L: the (+, +) quarter cut away
+    R = _rot_z(30)
+    pts = np.c_[uv, np.full(len(uv), 0.02)] @ R.T + [0.1, 0.0, TABLE_Z]
+    corners = outline_corners(pts, np.array([0.0, 0.0, 1.0]), spacing=0.0015)
+    convex = np.array([[0, 0], [0.06, 0], [0.06, 0.03], [0.03, 0.06], [0, 0.06]])
+    truth = np.c_[convex, np.full(5, 0.02)] @ R.T + [0.1, 0.0, TABLE_Z]
+    d = np.linalg.norm(corners[:, None] - truth[None], axis=2)  # (k, 5)
+    assert np.all(d.min(axis=0) < 0.003)  # every convex corner found ...
+    assert np.all(d.min(axis=1) < 0.003)  # ... and nothing else (not the concave corner)
+    assert len(corners) <= 6  # a rasterised corner may be cut into two close vertices
+
+
+@pytest.mark.slow
+def test_part_scene_control_point_candidates() -> None:
+    from mks_sim.devices import make_devices
+    from mks_sim.sim import truth
+    from mks_sim.sim.world import build_world
+
+    graph = SensorGraph.from_dir()
+    for seed in (None, 1):
+        world = build_world("part", seed=seed)
+        T = truth.object_to_world(world, "part")
+        control = industrial_part_control_points() @ T[:3, :3].T + T[:3, 3]
+        with make_devices(
+            world.model, world.data, np.random.default_rng(0), names=["range_finder"]
+        ) as devices:
+            candidates = graph.snapshot(devices).get("Control_Point_Detector").data
+        assert 4 <= len(candidates) <= 16
+        d = np.linalg.norm(control[:, None] - candidates[None], axis=2).min(axis=1)
+        assert np.all(d < 0.007), (seed, d)

@@ -280,22 +280,79 @@ def vertex_detector(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.
     return np.concatenate(rows) if rows else np.empty((0, 3))
 
 
+def outline_corners(
+    points: np.ndarray, normal: np.ndarray, spacing: float, epsilon_cells: float = 2.0
+) -> np.ndarray:
+    """(k, 3) convex corners of the outline of a planar region's points.
+
+    The points are projected onto their plane, rasterised at the sampling ``spacing`` (closed
+    by one cell so that the sampling gaps do not split the region), the outer contour is
+    simplified with ``approxPolyDP`` (``epsilon_cells`` cells) and its convex vertices are
+    returned, on the region's mean plane. The outline runs through the outermost samples, so a
+    corner lies up to about one spacing inside the true edge.
+    """
+    n = normal / np.linalg.norm(normal)
+    e1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    c = points.mean(axis=0)
+    uv = (points - c) @ np.stack([e1, e2]).T  # (n, 2)
+    cell = max(spacing, 1e-6)
+    lo = uv.min(axis=0) - 3 * cell
+    ij = np.floor((uv - lo) / cell).astype(int)
+    shape = ij.max(axis=0) + 4
+    img = np.zeros((shape[1], shape[0]), np.uint8)
+    img[ij[:, 1], ij[:, 0]] = 255
+    img = cv2.morphologyEx(img, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    contours, _ = cv2.findContours(img, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return np.empty((0, 3))
+    poly = cv2.approxPolyDP(max(contours, key=cv2.contourArea), epsilon_cells, True)[:, 0, :]
+    if len(poly) < 3:
+        return np.empty((0, 3))
+    q = (poly + 0.5) * cell + lo  # cell centres back to plane coordinates
+    prev, nxt = np.roll(q, 1, axis=0), np.roll(q, -1, axis=0)
+    a, b = q - prev, nxt - q
+    turn = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    area2 = np.sum(q[:, 0] * np.roll(q[:, 1], -1) - np.roll(q[:, 0], -1) * q[:, 1])
+    convex = q[np.sign(turn) == np.sign(area2)]
+    return c + convex[:, :1] * e1 + convex[:, 1:] * e2
+
+
 @register_program("control_point_detector")
 def control_point_detector(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
-    """(C, 3) vertexes where one upward face meets two walls (the part's control points)."""
+    """(C, 3) candidate control points of the industrial part.
+
+    First the vertexes where one upward face meets two walls (the recipe of
+    ``industrial_part_control_points``; exact where both walls are seen). Walls facing away
+    from the scanners are not seen, and the part's 8 mm walls are sparsely sampled, so with
+    ``outline_corners = true`` (default) the convex corners of the upward faces' outlines
+    (:func:`outline_corners`, within about one sampling spacing) are added where no vertex
+    lies within ``merge_m`` (default 3 spacings). The Hough matcher labels the candidates.
+    """
     pts = _stream_points(inputs, "control_point_detector")
     up_cos = np.cos(np.deg2rad(float(params.get("up_tolerance_deg", 20.0))))
     wall_sin = np.sin(np.deg2rad(float(params.get("up_tolerance_deg", 20.0))))
-    rows = []
+    rows: list[np.ndarray] = []
     for cloud in _object_clouds(pts, params):
         verts, seg = object_vertexes(cloud, params)
         n_regions = len(seg.planes)
+        found = []
         for v, faces, normals in zip(verts.points, verts.faces, verts.normals):
             if np.any(faces >= n_regions):  # on the table: a bottom corner
                 continue
             nz = np.abs(normals[:, 2])
             if (nz >= up_cos).sum() == 1 and (nz <= wall_sin).sum() == 2:
-                rows.append(v)
+                found.append(v)
+        if params.get("outline_corners", True):
+            merge = float(params.get("merge_m", 0.0)) or 3.0 * seg.spacing
+            for region in seg.planes:
+                if abs(region.normal[2]) < up_cos:
+                    continue
+                for corner in outline_corners(cloud[region.indices], region.normal, seg.spacing):
+                    if all(np.linalg.norm(corner - f) > merge for f in found):
+                        found.append(corner)
+        rows.extend(found)
     return np.asarray(rows, dtype=float).reshape(-1, 3)
 
 
