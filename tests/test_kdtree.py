@@ -179,3 +179,19 @@ def test_empty_tree():
     d, i = tree.query(np.zeros(2), k=2)
     assert i.tolist() == [0, 0] and np.all(np.isinf(d))
     assert tree.query_ball_point(np.zeros(2), 5.0) == []
+
+
+@pytest.mark.parametrize(
+    "metric",
+    [
+        Metric.euclidean(),
+        Metric.manhattan(weights=[0.3, 2, 1.7]),
+        Metric.chebyshev(ranges=[100, 1, 7]),
+        Metric.euclidean(weights=[0.3, 2, 1.7], ranges=[100, 1, 7]),
+    ],
+)
+def test_tree_distances_equal_metric_distance_bit_for_bit(metric):
+    # The SPG stores the tree's distances; they must be the metric's exactly (p = 1, 2, inf).
+    pts = np.random.default_rng(4).random((500, 3)) * [100, 1, 7]
+    d, i = KDTree(pts, metric=metric).query(pts[:100], k=6)
+    assert np.array_equal(d, metric.distance(pts[:100, None, :], pts[i]))

@@ -15,6 +15,7 @@ from mks_sim.lowlevel import DynamicKDTree, KDTree, Metric, SpatialProximityGrap
 METRICS = {
     "euclidean": Metric.euclidean(),
     "manhattan": Metric.manhattan(),
+    "minkowski3": Metric.minkowski(3, weights=[1.0, 0.5]),
     "chebyshev": Metric.chebyshev(),
     "sum_of": Metric.sum_of([abs_diff(), lambda a, b: 2.0 * np.abs(a - b)]),
 }

@@ -146,9 +146,12 @@ class KDTree:
             )
             d = np.asarray(d, float).reshape(len(q), k)
             i = np.asarray(i, np.intp).reshape(len(q), k)
-            order = np.lexsort((i, d), axis=-1)
-            d = np.take_along_axis(d, order, -1)
-            i = np.take_along_axis(i, order, -1)
+            # cKDTree sorts by distance; order equal distances by index (only rows that need it).
+            need = np.flatnonzero(np.any((d[:, 1:] == d[:, :-1]) & (i[:, 1:] < i[:, :-1]), axis=1))
+            if need.size:
+                order = np.lexsort((i[need], d[need]), axis=-1)
+                d[need] = np.take_along_axis(d[need], order, -1)
+                i[need] = np.take_along_axis(i[need], order, -1)
         else:
             d, i = self._knn_sum_of(q, k, distance_upper_bound, workers)
         if k == 1:

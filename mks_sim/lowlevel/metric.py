@@ -205,7 +205,13 @@ class Metric:
         self.check_dim(k)
         if self.kind == "sum_of":
             return np.asarray(self.terms(q, d).sum(axis=-1))
-        diff = np.abs(q - d) * self.coordinate_scale(k)
+        if self.weights is None and self.ranges is None:
+            diff = np.abs(q - d)
+        else:
+            # Scale first, then subtract: the same arithmetic as cKDTree on scaled coordinates,
+            # so tree distances and these agree to the last bit.
+            s = self.coordinate_scale(k)
+            diff = np.abs(q * s - d * s)
         if self.p == math.inf:
             return np.asarray(diff.max(axis=-1)) if k else np.zeros(diff.shape[:-1])
         if self.p == 1:

@@ -129,6 +129,7 @@ class SpatialProximityGraph:
         self._indptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.intp)
         self._nbr = nbr
         self._dist = dist
+        self._adj: sparse.csr_array | None = None
 
     # ------------------------------------------------------------------ the tree side
     def _points_of(self, ids: NDArray[np.intp]) -> NDArray[np.float64]:
@@ -153,6 +154,7 @@ class SpatialProximityGraph:
             radii = np.full(nq, self.threshold * (1 + 1e-12) + 1e-300)
             lens = np.zeros(nq, np.intp)
             taken_nbr = np.zeros((nq, 0), np.intp)
+            taken_d = np.zeros((nq, 0))
             taken_ok = np.zeros((nq, 0), bool)
         else:
             m = int(self.m)
@@ -169,7 +171,8 @@ class SpatialProximityGraph:
             # A tie across the m-th place: the tree chose among equals; redo by index.
             ball_rows = np.flatnonzero(d_next == d_last)
             radii = d_last[ball_rows] * (1 + 1e-12) + 1e-300
-            taken_nbr = np.where(take, i, 0)
+            taken_nbr = i
+            taken_d = d
             taken_ok = take
             lens = take.sum(axis=1)
         for j, r in zip(ball_rows.tolist(), radii.tolist(), strict=True):
@@ -183,17 +186,31 @@ class SpatialProximityGraph:
             if self.m != "all":
                 order = order[: int(self.m)]
             rows[j] = (idx[order], dd[order])
-        # Flatten the k-nearest part, recompute exact distances with the metric (one formula for
-        # every stored edge), re-sort by (distance, id), then splice in the ball rows.
+        # Flatten the k-nearest part (row-major, so rows stay in order and each row nearest
+        # first). The tree's distances are the metric's to the last bit (cKDTree on scaled
+        # coordinates does the same arithmetic as Metric.distance; sum_of is refined exactly).
         row_of = np.repeat(np.arange(nq), lens)
         nbr = taken_nbr[taken_ok]
-        dist = self.metric.distance(q[row_of], self._points_of(nbr)) if nbr.size else np.zeros(0)
+        dist = taken_d[taken_ok]
+        if self.metric.is_minkowski and self.metric.p not in (1.0, 2.0, math.inf) and nbr.size:
+            # cKDTree's pow() path differs from numpy's in the last bit: one formula for all.
+            dist = self.metric.distance(np.repeat(q, lens, axis=0), self._points_of(nbr))
         keep = np.ones(len(nbr), bool)
         if self.threshold is not None:
             keep &= dist <= self.threshold
         if rows:
             keep &= ~np.isin(row_of, np.fromiter(rows, np.intp, len(rows)))
-        row_of, nbr, dist = row_of[keep], nbr[keep], dist[keep]
+        if not keep.all():
+            row_of, nbr, dist = row_of[keep], nbr[keep], dist[keep]
+        same_row = row_of[1:] == row_of[:-1]
+        out_of_order = same_row & (
+            (dist[1:] < dist[:-1]) | ((dist[1:] == dist[:-1]) & (nbr[1:] < nbr[:-1]))
+        )
+        if out_of_order.any():
+            bad = np.isin(row_of, np.unique(row_of[1:][out_of_order]))
+            sub = np.flatnonzero(bad)
+            order = sub[np.lexsort((nbr[sub], dist[sub], row_of[sub]))]
+            nbr[sub], dist[sub] = nbr[order], dist[order]
         if rows:
             extra_rows = np.fromiter(rows, np.intp, len(rows))
             row_of = np.concatenate(
@@ -201,8 +218,8 @@ class SpatialProximityGraph:
             )
             nbr = np.concatenate([nbr, *[rows[r][0] for r in rows]])
             dist = np.concatenate([dist, *[rows[r][1] for r in rows]])
-        order = np.lexsort((nbr, dist, row_of))
-        row_of, nbr, dist = row_of[order], nbr[order], dist[order]
+            order = np.argsort(row_of, kind="stable")  # keeps each row's own order
+            row_of, nbr, dist = row_of[order], nbr[order], dist[order]
         lens = np.bincount(row_of, minlength=nq).astype(np.intp)
         return lens, nbr.astype(np.intp), dist.astype(float)
 
@@ -226,38 +243,58 @@ class SpatialProximityGraph:
         return self._tree
 
     def _cols(self) -> NDArray[np.intp]:
+        if self._ids_are_range:
+            return self._nbr
         return np.searchsorted(self._ids, self._nbr).astype(np.intp)
 
     @property
+    def _ids_are_range(self) -> bool:
+        n = len(self._ids)
+        return n == 0 or (int(self._ids[0]) == 0 and int(self._ids[-1]) == n - 1)
+
+    @property
     def adjacency(self) -> sparse.csr_array:
-        """(N, N) directed adjacency, canonical CSR; data = distances (explicit zeros kept)."""
-        n = self.n
-        cols = self._cols()
-        rows = np.repeat(np.arange(n), np.diff(self._indptr))
-        order = np.lexsort((cols, rows))
-        return sparse.csr_array((self._dist[order], cols[order], self._indptr.copy()), shape=(n, n))
+        """(N, N) directed adjacency, canonical CSR; data = distances (explicit zeros kept).
+
+        Cached until the next update; treat it as read-only.
+        """
+        if self._adj is None:
+            n = self.n
+            adj = sparse.csr_array(
+                (self._dist.copy(), self._cols().copy(), self._indptr.copy()), shape=(n, n)
+            )
+            adj.sort_indices()  # permutes within rows, keeps explicit zeros
+            self._adj = adj
+        return self._adj
 
     @property
     def pattern(self) -> sparse.csr_array:
         """(N, N) boolean directed adjacency (True for every edge, including distance 0)."""
         adj = self.adjacency
-        return sparse.csr_array((np.ones(adj.nnz, bool), adj.indices, adj.indptr), shape=adj.shape)
+        return sparse.csr_array(
+            (np.ones(adj.nnz, bool), adj.indices.copy(), adj.indptr.copy()), shape=adj.shape
+        )
 
     def symmetric(self) -> sparse.csr_array:
         """(N, N) undirected view: i~j if i->j or j->i; data = the smaller distance."""
         n = self.n
         cols = self._cols()
-        rows = np.repeat(np.arange(n), np.diff(self._indptr))
-        r = np.concatenate([rows, cols])
-        c = np.concatenate([cols, rows])
+        rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(self._indptr))
+        r = np.concatenate([rows, cols.astype(np.int64)])
+        c = np.concatenate([cols.astype(np.int64), rows])
         d = np.concatenate([self._dist, self._dist])
-        order = np.lexsort((d, c, r))
-        r, c, d = r[order], c[order], d[order]
-        first = np.ones(len(r), bool)
-        first[1:] = (r[1:] != r[:-1]) | (c[1:] != c[:-1])
-        r, c, d = r[first], c[first], d[first]
+        key = r * max(n, 1) + c
+        order = np.argsort(key, kind="stable")
+        key, d = key[order], d[order]
+        first = np.ones(len(key), bool)
+        first[1:] = key[1:] != key[:-1]
+        # a pair appears at most twice (i->j and j->i): keep the smaller distance
+        dup = np.flatnonzero(~first)
+        d[dup - 1] = np.minimum(d[dup - 1], d[dup])
+        key, d = key[first], d[first]
+        r, c = key // max(n, 1), key % max(n, 1)
         indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))])
-        return sparse.csr_array((d, c, indptr), shape=(n, n))
+        return sparse.csr_array((d, c.astype(np.intp), indptr), shape=(n, n))
 
     def neighbors(self, i: int) -> NDArray[np.intp]:
         """(n_i,) neighbour rows of node i, nearest first, ties by index."""
@@ -277,10 +314,11 @@ class SpatialProximityGraph:
         return slice(int(self._indptr[i]), int(self._indptr[i + 1]))
 
     def components(self) -> tuple[int, NDArray[np.int32]]:
-        """Connected components of the symmetric view: (count, labels (N,))."""
-        sym = self.symmetric()
-        pat = sparse.csr_array((np.ones(sym.nnz, bool), sym.indices, sym.indptr), shape=sym.shape)
-        count, labels = connected_components(pat, directed=False)
+        """Connected components of the symmetric view: (count, labels (N,)).
+
+        Computed as the weakly connected components of the directed graph (the same thing).
+        """
+        count, labels = connected_components(self.pattern, directed=True, connection="weak")
         return int(count), labels
 
     # ------------------------------------------------------------------ updates
@@ -401,6 +439,7 @@ class SpatialProximityGraph:
         self._dist = all_dist[order]
         counts = np.bincount(all_row, minlength=len(ids_new))
         self._indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.intp)
+        self._adj = None
 
     def __repr__(self) -> str:
         return (
