@@ -169,3 +169,65 @@ def test_exhaustive_equals_pruned_maxima() -> None:
     pa = np.array(sorted(tuple(np.round(m.position, 6)) for m in a.top_maxima))
     pb = np.array(sorted(tuple(np.round(m.position, 6)) for m in b.top_maxima))
     np.testing.assert_allclose(pa, pb, atol=1e-5)
+
+
+# --------------------------------------------------------------------------- model kinds
+
+
+def _write(tmp_path, body: str):
+    p = tmp_path / "m.toml"
+    p.write_text(body, encoding="utf-8")
+    return p
+
+
+def test_model_kinds_load(tmp_path) -> None:
+    from mks_sim.models.database import ModelDatabase
+    from mks_sim.models.hough3d import TranslationHough3D
+
+    p = _write(
+        tmp_path,
+        """
+[[model]]
+name = "tri"
+kind = "rotinv"
+points = [[0, 0, 0], [1, 0, 0], [0, 2, 0], [0, 0, 3]]
+tolerance = 0.01
+symmetry = "none"
+
+[[model]]
+name = "box"
+kind = "hough3d"
+points = [[0, 0, 0], [1, 0, 0], [0, 2, 0]]
+reference = [0, 0, 0]
+symmetry = "cube"
+""",
+    )
+    db = ModelDatabase.from_files([p])
+    tri = db.get("tri")
+    assert isinstance(tri, RotationInvariantHough)
+    assert tri.tolerance == pytest.approx(0.01) and tri.symmetries is None
+    assert tri.min_gap > 0  # reference chosen automatically
+    box = db.get("box")
+    assert isinstance(box, TranslationHough3D)
+    assert box.symmetries.shape == (24, 3, 3)
+
+
+@pytest.mark.parametrize(
+    ("body", "match"),
+    [
+        ("points = [[0, 0, 0], [1, 0, 0]]", "at least 3"),
+        ('points = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]\nsymmetry = "sphere"', "symmetry"),
+        ("points = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]\ntolerance = -1", "tolerance"),
+        ("points = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]\nreference = [1, 2]", "reference"),
+        ('points = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]\ncolour = "red"', "unknown field"),
+        ("tolerance = 1.0", "'points' is missing"),
+        ("points = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]\nreference = [0, 0, 5]", "not distinct"),
+    ],
+)
+def test_model_kind_errors(tmp_path, body: str, match: str) -> None:
+    from mks_sim.models.database import ModelDatabase
+
+    p = _write(tmp_path, f'[[model]]\nname = "bad"\nkind = "rotinv"\n{body}\n')
+    with pytest.raises(SpecError, match=match) as info:
+        ModelDatabase.from_files([p])
+    assert "model 'bad'" in str(info.value)

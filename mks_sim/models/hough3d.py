@@ -115,6 +115,7 @@ class TranslationHough3D:
             the noise of the detected vertexes.
         name: model name.
         min_votes: maxima with fewer votes are not reported (default 2, or 1 for one vertex).
+        symmetries: optional (K, 3, 3) rotations of the model (kept for evaluation).
     """
 
     def __init__(
@@ -124,10 +125,14 @@ class TranslationHough3D:
         cell: float | None = None,
         name: str = "",
         min_votes: int | None = None,
+        symmetries: ArrayLike | None = None,
     ) -> None:
         P = _points(points, "TranslationHough3D: model points")
         self.points: FloatArray = P
         self.name = name
+        self.description = ""
+        self.unit = ""
+        self.symmetries = None if symmetries is None else np.asarray(symmetries, dtype=float)
         if reference is None:
             ref = P.mean(axis=0)
         else:
@@ -227,3 +232,7 @@ class TranslationHough3D:
             correspondences=np.column_stack([det_idx, mod_idx]),
             rmse=rmse,
         )
+
+
+# Registers the model-database kinds "rotinv" and "hough3d" (the database imports this module).
+import mks_sim.models.hough_kinds  # noqa: E402, F401

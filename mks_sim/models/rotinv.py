@@ -288,6 +288,8 @@ class RotationInvariantHough:
             )
         self.points: FloatArray = uniq
         self.name = name
+        self.description = ""
+        self.unit = ""
         diameter = float(np.linalg.norm(uniq.max(axis=0) - uniq.min(axis=0)))
         if reference is None:
             ref = choose_reference(uniq)
@@ -528,3 +530,7 @@ class RotationInvariantHough:
         src = np.vstack([self.points[mod_idx], self.reference])
         dst = np.vstack([D[det_idx], pos])
         return rigid_fit(src, dst)
+
+
+# Registers the model-database kinds "rotinv" and "hough3d" (the database imports this module).
+import mks_sim.models.hough_kinds  # noqa: E402, F401
