@@ -151,7 +151,7 @@ class SpatialProximityGraph:
         if self.m == "all":
             assert self.threshold is not None
             ball_rows = np.arange(nq)
-            radii = np.full(nq, self.threshold * (1 + 1e-12) + 1e-300)
+            radii = np.full(nq, self.threshold * (1 + 1e-12) + 1e-30)
             lens = np.zeros(nq, np.intp)
             taken_nbr = np.zeros((nq, 0), np.intp)
             taken_d = np.zeros((nq, 0))
@@ -159,7 +159,7 @@ class SpatialProximityGraph:
         else:
             m = int(self.m)
             # Slightly generous bound; the exact metric filters below.
-            dub = math.inf if self.threshold is None else self.threshold * (1 + 1e-12) + 1e-300
+            dub = math.inf if self.threshold is None else self.threshold * (1 + 1e-12) + 1e-30
             d, i = tree.query(q, k=m + 2, distance_upper_bound=dub, workers=self.workers)
             d = np.asarray(d).reshape(nq, m + 2)
             i = np.asarray(i).reshape(nq, m + 2)
@@ -170,7 +170,7 @@ class SpatialProximityGraph:
             d_next = np.where(valid & (rank == m), d, np.inf).min(axis=1)
             # A tie across the m-th place: the tree chose among equals; redo by index.
             ball_rows = np.flatnonzero(d_next == d_last)
-            radii = d_last[ball_rows] * (1 + 1e-12) + 1e-300
+            radii = d_last[ball_rows] * (1 + 1e-12) + 1e-30
             taken_nbr = i
             taken_d = d
             taken_ok = take
@@ -363,7 +363,7 @@ class SpatialProximityGraph:
                 # Unbounded reach, or an asymmetric sum_of metric: check every old row.
                 cand_rows = [np.arange(len(old_ids))] * len(pts)
             else:
-                lists = tree.query_ball_point(pts, r_max * (1 + 1e-12) + 1e-300)
+                lists = tree.query_ball_point(pts, r_max * (1 + 1e-12) + 1e-30)
                 cand_rows = [np.searchsorted(old_ids, np.asarray(lst, np.intp)) for lst in lists]
             old_pts = self._points_of(old_ids)
             for x, rows in zip(pts, cand_rows, strict=True):

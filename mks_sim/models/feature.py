@@ -235,7 +235,7 @@ def match_model_tree(models: Sequence[FeatureModel], descriptions: Descriptions)
         r = max(m.threshold for m in members)
         pairs: set[tuple[int, int]] = set()
         if len(kv):
-            for di, hits in enumerate(tree.query_ball_point(kv, r * (1 + 1e-12) + 1e-300)):
+            for di, hits in enumerate(tree.query_ball_point(kv, r * (1 + 1e-12) + 1e-30)):
                 pairs.update((mi, di) for mi in hits)
         matches += _finish(members, kv, pairs)
     return sorted(matches)
@@ -250,7 +250,7 @@ def match_description_tree(
         tree = KDTree(kv, metric=members[0].metric)
         pairs: set[tuple[int, int]] = set()
         for mi, m in enumerate(members):
-            hits = tree.query_ball_point(m.reference_vector, m.threshold * (1 + 1e-12) + 1e-300)
+            hits = tree.query_ball_point(m.reference_vector, m.threshold * (1 + 1e-12) + 1e-30)
             pairs.update((mi, di) for di in hits)
         matches += _finish(members, kv, pairs)
     return sorted(matches)
@@ -269,7 +269,7 @@ def match_spg(models: Sequence[FeatureModel], descriptions: Descriptions) -> lis
         spg = SpatialProximityGraph(
             np.concatenate([refs, kv]),
             m="all",
-            threshold=r * (1 + 1e-12) + 1e-300,
+            threshold=r * (1 + 1e-12) + 1e-30,
             metric=members[0].metric,
         )
         nm = len(members)
