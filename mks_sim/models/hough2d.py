@@ -192,10 +192,16 @@ class RTableHough:
 
     @classmethod
     def from_image(
-        cls, image: ArrayLike, reference: ArrayLike | None = None, n_bins: int = 36, **canny: float
+        cls,
+        image: ArrayLike,
+        reference: ArrayLike | None = None,
+        n_bins: int = 36,
+        low: float = 50.0,
+        high: float = 150.0,
+        blur: int = 3,
     ) -> RTableHough:
         """Build the R-table from a template image (edges and gradients via OpenCV)."""
-        pts, ang = edges_and_gradients(image, **canny)
+        pts, ang = edges_and_gradients(image, low=low, high=high, blur=blur)
         return cls(pts, ang, reference=reference, n_bins=n_bins)
 
     @property
