@@ -80,7 +80,10 @@ _BUILTIN_SENSORS: dict[str, str] = {
 }
 POINTS_SENSOR = "Range_Points"
 SPHERE_SENSOR = "Sphere_Detector"
-MIN_EXPLAINED_SPHERE_M = 0.01  # spheres at least this large are set aside for polyhedra
+# Spheres of this radius range found by Sphere_Detector are set aside before polyhedral
+# matching (the workstation's spheres are 3 cm; larger fits are curved-region artefacts).
+MIN_EXPLAINED_SPHERE_M = 0.01
+MAX_EXPLAINED_SPHERE_M = 0.05
 TABLE_Z_M = 0.75  # nominal table height: a sensor calibration parameter (sensors/points.toml)
 
 
@@ -337,22 +340,31 @@ def _localize_polyhedral(
         spheres = np.zeros((0, 4))
     keep = np.ones(len(objects), dtype=bool)
     for s in spheres:
-        if s[3] >= MIN_EXPLAINED_SPHERE_M:
+        if MIN_EXPLAINED_SPHERE_M <= s[3] <= MAX_EXPLAINED_SPHERE_M:
             shell = np.abs(np.linalg.norm(objects - s[:3], axis=1) - s[3])
             keep &= shell > max(table_thr, 0.003) + 0.001
-    extra["spheres_set_aside"] = int((spheres[:, 3] >= MIN_EXPLAINED_SPHERE_M).sum())
+    extra["spheres_set_aside"] = int(
+        np.sum(
+            (spheres[:, 3] >= MIN_EXPLAINED_SPHERE_M) & (spheres[:, 3] <= MAX_EXPLAINED_SPHERE_M)
+        )
+    )
     objects = objects[keep]
     extra["object_points"] = len(objects)
     if len(objects) < 30:
         return [], extra
-    loc = localize_cloud(
-        model,
-        objects,
-        table=table if table is not None else "none",
-        max_hypotheses=30,
-        min_score=0.0,
-        rng=rng,
-    )
+    kwargs: dict[str, Any] = {
+        "table": table if table is not None else "none",
+        "max_hypotheses": 30,
+        "rng": rng,
+    }
+    try:
+        # min_score 0.5: a segment whose vertex hypotheses explain less than half of it also
+        # gets plane-pair hypotheses (few vertexes seen, e.g. noisy stereo points).
+        loc = localize_cloud(model, objects, min_score=0.5, **kwargs)
+    except DataError as exc:  # degenerate plane pair in the fallback: vertexes only
+        log.warning("localize_cloud with plane-pair fallback failed (%s); vertexes only", exc)
+        extra["fallback_error"] = str(exc)
+        loc = localize_cloud(model, objects, min_score=0.0, **kwargs)
     for k, v in loc.timing.items():
         if k != "total":
             timing[k] = v
@@ -455,44 +467,127 @@ def _localize_sphere(
     rng: np.random.Generator,
     timing: dict[str, float],
 ) -> tuple[list[PoseHypothesis], dict[str, Any]]:
-    from mks_sim.lowlevel.grouping import fit_sphere
-
+    """Sphere: Sphere_Detector rows of the model's radius plus a fixed-radius centre Hough
+    (votes ``p - r n``), each refined by a fixed-radius robust fit and scored by how much of
+    the sphere's upper cap the sensed points cover."""
     extra: dict[str, Any] = {}
     t = time.perf_counter()
-    rows = np.asarray(snap.get(sensor).data, dtype=np.float64).reshape(-1, 4)
+    try:
+        rows = np.asarray(snap.get(sensor).data, dtype=np.float64).reshape(-1, 4)
+    except MksError as exc:
+        log.info("logical sensor %s unavailable: %s", sensor, exc)
+        rows = np.zeros((0, 4))
     timing["model_sensor"] = time.perf_counter() - t
     extra["detected_features"] = len(rows)
-    t = time.perf_counter()
+    radius = float(model.radius_m)
     match = model.match(rows) if hasattr(model, "match") else np.arange(len(rows))
     extra["matched"] = len(match)
-    radius = float(model.radius_m)
+
+    t = time.perf_counter()
     table, table_thr = find_table(points, rng)
-    tree = cKDTree(points)
-    hyps: list[tuple[float, PoseHypothesis]] = []
-    for i in match:
-        c = rows[i, :3]
-        # 6. refine: geometric sphere fit to the points near the detected sphere's surface
-        for _ in range(3):
-            idx = tree.query_ball_point(c, r=radius * 1.25)
-            pts = points[idx]
-            if table is not None:
-                pts = pts[table.distance(pts) > table_thr]
-            shell = np.abs(np.linalg.norm(pts - c, axis=1) - radius) < max(0.004, 0.12 * radius)
-            if shell.sum() < 20:
-                break
-            try:
-                fit = fit_sphere(pts[shell])
-            except DataError:
-                break
-            if abs(fit.radius - radius) > model.tolerance_m:
-                break
-            c = fit.center
-        else:
-            T = np.eye(4)
-            T[:3, 3] = c
-            n_in = int(shell.sum())
-            h = PoseHypothesis(T, c.copy(), votes=n_in, rmse=fit.rmse, score=1.0)
-            hyps.append((n_in / max(fit.rmse, 1e-6), h))
+    objects = points if table is None else points[table.distance(points) > table_thr]
+    d = _noise_scale(points, table, 0.0)
+    seeds = [rows[i, :3] for i in match]
+    seeds += _sphere_hough(objects, radius)
+    timing["matching"] = time.perf_counter() - t
+    extra["candidates"] = len(seeds)
+
+    t = time.perf_counter()
+    tree = cKDTree(objects) if len(objects) else None
+    cap = _fibonacci(400)
+    cap = cap[cap[:, 2] > 0.3]
+    scored: list[tuple[float, PoseHypothesis, dict[str, Any]]] = []
+    for c0 in seeds:
+        if tree is None:
+            break
+        fit = _fit_fixed_sphere(objects, tree, np.asarray(c0, dtype=float), radius, d)
+        if fit is None:
+            continue
+        c, rmse, n_in = fit
+        near_d = tree.query(c + radius * cap)[0]
+        coverage = float(np.mean(near_d <= d))
+        inside = len(tree.query_ball_point(c, r=max(radius - 2 * d, 0.0)))
+        check = {
+            "coverage": coverage,
+            "explained": n_in,
+            "inside": inside,
+            "rmse_m": rmse,
+            "ok": bool(coverage >= 0.5 and inside <= 0.05 * max(n_in, 1) and n_in >= 30),
+        }
+        T = np.eye(4)
+        T[:3, 3] = c
+        h = PoseHypothesis(T, c.copy(), votes=n_in, rmse=rmse, score=coverage)
+        scored.append((coverage, h, check))
     timing["refinement"] = time.perf_counter() - t
-    hyps.sort(key=lambda x: -x[0])
-    return [h for _, h in hyps], extra
+    scored.sort(key=lambda x: (not x[2]["ok"], -x[0], x[1].rmse))
+    extra["inlier_distance_m"] = d
+    extra["checks"] = [c for _, _, c in scored[:5]]
+    good: list[PoseHypothesis] = []
+    for _, h, c in scored:
+        if c["ok"] and all(np.linalg.norm(h.matrix[:3, 3] - g.matrix[:3, 3]) > d for g in good):
+            good.append(h)
+    return good, extra
+
+
+def _fibonacci(n: int) -> FloatArray:
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    phi = np.pi * (1.0 + 5**0.5) * i
+    r = np.sqrt(1.0 - z * z)
+    return np.c_[r * np.cos(phi), r * np.sin(phi), z]
+
+
+def _sphere_hough(objects: FloatArray, radius: float, peaks: int = 4) -> list[FloatArray]:
+    """Centres voted by ``p - r n`` (normals towards the sensors above), the fullest cells."""
+    from mks_sim.lowlevel.grouping import estimate_normals
+
+    if len(objects) < 50:
+        return []
+    sn = estimate_normals(objects, m=24, viewpoint=(0.0, 0.0, 2.0), curvature_rings=1)
+    votes = objects - radius * sn.normals
+    cell = radius / 5.0
+    keys = np.floor(votes / cell).astype(np.int64)
+    uniq, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    out: list[FloatArray] = []
+    for k in np.argsort(-counts)[: peaks * 3]:
+        if counts[k] < 10 or len(out) >= peaks:
+            break
+        c = votes[inv == k].mean(axis=0)
+        if all(np.linalg.norm(c - o) > radius / 2 for o in out):
+            out.append(c)
+    return out
+
+
+def _fit_fixed_sphere(
+    objects: FloatArray, tree: cKDTree, c0: FloatArray, radius: float, d: float
+) -> tuple[FloatArray, float, int] | None:
+    """Centre of a sphere of known radius fitted robustly to the points near ``c0``'s shell."""
+    from scipy.optimize import least_squares
+
+    c = c0.copy()
+    band = max(3.0 * d, 0.15 * radius)
+    for _ in range(4):
+        idx = tree.query_ball_point(c, r=radius + band)
+        pts = objects[idx]
+        if len(pts) < 20:
+            return None
+        shell = np.abs(np.linalg.norm(pts - c, axis=1) - radius) < band
+        pts = pts[shell]
+        if len(pts) < 20:
+            return None
+
+        def resid(x: FloatArray, p: FloatArray = pts) -> FloatArray:
+            return np.linalg.norm(p - x, axis=1) - radius
+
+        res = least_squares(resid, c, loss="soft_l1", f_scale=max(d / 3.0, 1e-4))
+        step = float(np.linalg.norm(res.x - c))
+        c = res.x
+        band = max(1.5 * d, 0.5 * band)
+        if step < 1e-5:
+            break
+    r = np.linalg.norm(objects[tree.query_ball_point(c, r=radius + d)] - c, axis=1) - radius
+    inl = np.abs(r) <= d
+    if inl.sum() < 20:
+        return None
+    return c, float(np.sqrt(np.mean(r[inl] ** 2))), int(inl.sum())
