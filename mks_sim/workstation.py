@@ -521,10 +521,10 @@ def _localize_sphere(
     timing["refinement"] = time.perf_counter() - t
     scored.sort(key=lambda x: (not x[2]["ok"], -x[0], x[1].rmse))
     extra["inlier_distance_m"] = d
-    extra["checks"] = [c for _, _, c in scored[:5]]
+    extra["checks"] = [chk for _, _, chk in scored[:5]]
     good: list[PoseHypothesis] = []
-    for _, h, c in scored:
-        if c["ok"] and all(np.linalg.norm(h.matrix[:3, 3] - g.matrix[:3, 3]) > d for g in good):
+    for _, h, chk in scored:
+        if chk["ok"] and all(np.linalg.norm(h.matrix[:3, 3] - g.matrix[:3, 3]) > d for g in good):
             good.append(h)
     return good, extra
 
