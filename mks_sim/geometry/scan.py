@@ -6,7 +6,7 @@ Gaussian range noise along the ray. Misses are NaN in the organised result (the 
 style sensor reports them) and dropped from the unorganised one.
 
 The intersection test is Moller-Trumbore rewritten for rays sharing one origin: every quantity
-is a matrix product (rays x triangles), computed per 32 x 32-pixel tile over the triangles whose
+is a matrix product (rays x triangles), computed per 16 x 16-pixel tile over the triangles whose
 projected bounding box overlaps the tile. Back-facing triangles are culled (closed meshes).
 """
 
@@ -29,7 +29,7 @@ __all__ = [
     "synthetic_scan_organized",
 ]
 
-_TILE = 32
+_TILE = 16
 
 
 @dataclass(frozen=True)

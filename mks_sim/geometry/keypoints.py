@@ -1,0 +1,149 @@
+"""Rotation-invariant local signatures and repeatable keypoints of surface point sets.
+
+A point's signature is computed from the points within a ball of radius ``r`` around it, at
+two radii (scales). Per scale, with the neighbourhood covariance eigenvalues
+``l0 <= l1 <= l2``, its centroid ``c`` and the point's unit normal ``n``:
+
+* surface variation ``l0 / (l0 + l1 + l2)`` (0 on a plane, up to 1/3; curvature, edges,
+  corners),
+* anisotropy ``l1 / l2`` (near 1 inside a surface or at a corner, lower along an edge),
+* convexity ``(p - c) . n / r`` (positive where the surface bulges towards the normal,
+  negative in a hollow; needs outward / sensor-facing normals).
+
+All three are invariant to rotation and translation, so a detected point can be paired only
+with the model points it could be (the free-form Hough model, ``mks_sim.models.freeform``).
+Keypoints are local maxima of the surface variation (non-maximum suppression over a ball),
+above a floor: corners, hole rims, bump tops - points whose location is repeatable.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+__all__ = [
+    "SIGNATURE_NAMES",
+    "estimate_normals_pca",
+    "local_signatures",
+    "nms_keypoints",
+    "voxel_downsample",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Signature components, in order (two scales).
+SIGNATURE_NAMES = (
+    "variation_r1",
+    "anisotropy_r1",
+    "convexity_r1",
+    "variation_r2",
+    "anisotropy_r2",
+    "convexity_r2",
+)
+
+_K = 96  # neighbours per ball query (the cloud is thinned so that a ball holds fewer)
+
+
+def voxel_downsample(points: FloatArray, spacing: float) -> NDArray[np.int64]:
+    """Indices of one point per occupied voxel of edge ``spacing`` (the first, in input order)."""
+    if len(points) == 0:
+        return np.zeros(0, np.int64)
+    key = np.floor((points - points.min(axis=0)) / spacing).astype(np.int64)
+    _, first = np.unique(key, axis=0, return_index=True)
+    return np.sort(first).astype(np.int64)
+
+
+def _ball_stats(
+    cloud: FloatArray, tree: cKDTree, queries: FloatArray, radius: float
+) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int64]]:
+    """Centroid (Q, 3), eigenvalues ascending (Q, 3), eigenvectors (Q, 3, 3), counts (Q,)."""
+    d, j = tree.query(queries, k=min(_K, len(cloud)), distance_upper_bound=radius)
+    if d.ndim == 1:
+        d, j = d[:, None], j[:, None]
+    ok = np.isfinite(d)  # (Q, K)
+    cnt = ok.sum(axis=1)
+    nb = cloud[np.minimum(j, len(cloud) - 1)]  # (Q, K, 3)
+    w = ok[..., None].astype(np.float64)
+    c = (nb * w).sum(axis=1) / np.maximum(cnt, 1)[:, None]
+    x = (nb - c[:, None]) * w
+    cov = np.einsum("qki,qkj->qij", x, x) / np.maximum(cnt, 1)[:, None, None]
+    evals, evecs = np.linalg.eigh(cov)
+    return c, np.clip(evals, 0.0, None), evecs, cnt
+
+
+def estimate_normals_pca(
+    points: FloatArray, radius: float, viewpoint: FloatArray | None = None
+) -> FloatArray:
+    """(N, 3) unit normals by PCA over balls of ``radius``, oriented towards ``viewpoint``
+    (or, without one, away from the cloud's centroid)."""
+    tree = cKDTree(points)
+    _, _, evecs, _ = _ball_stats(points, tree, points, radius)
+    n = evecs[:, :, 0]
+    ref = points - (points.mean(axis=0) if viewpoint is None else viewpoint)
+    sign = np.einsum("ij,ij->i", n, ref)
+    if viewpoint is not None:
+        sign = -sign
+    return n * np.where(sign < 0, -1.0, 1.0)[:, None]
+
+
+def local_signatures(
+    cloud: FloatArray,
+    queries: FloatArray,
+    query_normals: FloatArray,
+    radii: tuple[float, float],
+    min_count: int = 8,
+) -> FloatArray:
+    """(Q, 6) signatures of query locations over a cloud (NaN rows where a ball is too sparse).
+
+    Args:
+        cloud: (N, 3) surface points (the neighbourhoods); thinned internally per scale to
+            about radius / 4 spacing.
+        queries: (Q, 3) locations to describe (need not be cloud points).
+        query_normals: (Q, 3) unit normals at the queries (outward / towards the sensor).
+        radii: the two ball radii (points' units).
+        min_count: fewer neighbours than this gives NaN.
+    """
+    out = np.full((len(queries), 6), np.nan)
+    for s, r in enumerate(radii):
+        sub = cloud[voxel_downsample(cloud, r / 4.0)]
+        if len(sub) == 0:
+            continue
+        tree = cKDTree(sub)
+        c, ev, _, cnt = _ball_stats(sub, tree, queries, r)
+        tot = ev.sum(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            var = ev[:, 0] / tot
+            ani = ev[:, 1] / ev[:, 2]
+        conv = np.einsum("ij,ij->i", queries - c, query_normals) / r
+        good = (cnt >= min_count) & (tot > 0)
+        out[good, 3 * s] = var[good]
+        out[good, 3 * s + 1] = ani[good]
+        out[good, 3 * s + 2] = conv[good]
+    return out
+
+
+def nms_keypoints(
+    points: FloatArray, saliency: FloatArray, radius: float, floor: float
+) -> NDArray[np.int64]:
+    """Indices of points whose saliency is the maximum within ``radius`` and above ``floor``.
+
+    Ties are broken by index (the lower index wins), so the result is deterministic.
+    """
+    cand = np.flatnonzero(np.isfinite(saliency) & (saliency > floor))
+    if cand.size == 0:
+        return cand.astype(np.int64)
+    p = points[cand]
+    s = saliency[cand]
+    tree = cKDTree(p)
+    d, j = tree.query(p, k=min(32, len(p)), distance_upper_bound=radius)
+    if d.ndim == 1:
+        d, j = d[:, None], j[:, None]
+    ok = np.isfinite(d)
+    jj = np.minimum(j, len(p) - 1)
+    s_nb = np.where(ok, s[jj], -np.inf)
+    idx_nb = np.where(ok, jj, len(p))
+    own = np.arange(len(p))[:, None]
+    beats = (s_nb > s[:, None]) | ((s_nb == s[:, None]) & (idx_nb < own))
+    keep = ~beats.any(axis=1)
+    return cand[keep].astype(np.int64)

@@ -1,0 +1,767 @@
+"""Free-form rotation-invariant Hough model (project issue #6; paper sections 2.2.1, 4.2, 5).
+
+The paper's rotation-invariant 3-D Hough transform accumulates votes for the model reference
+point ``P0`` at the intersections of spheres centred on detected points, with radii the model
+points' distances to ``P0``; section 4.2 keeps the accumulator small by using a few
+*recoverable* points (vertexes, or four control points). For a free-form object we choose those
+points automatically:
+
+1. **Recoverable points.** Configuration time samples the model surface and renders it from
+   ``n_views`` viewpoints (``mks_sim.geometry.scan``). Candidate model points are surface
+   samples whose surface variation is high (corners, rims, bumps); each gets one rotation-
+   invariant signature *per view in which it is visible* (``mks_sim.geometry.keypoints``:
+   variation, anisotropy, convexity at two scales), so that a partial scan's signature finds its
+   model counterpart despite self-occlusion.
+2. **Pairing.** At execution time the scene keypoints (local maxima of surface variation) are
+   each paired with the ``matches_per_keypoint`` model points of nearest signature.
+3. **Sphere intersections.** Three pairings whose scene distances equal their model distances
+   (within ``distance_tolerance``) form congruent triangles; the intersection of the three
+   spheres centred on the detected points, with radii the model points' distances to ``P0``, is
+   the reference point's location - computed, together with the rotation, by a rigid fit of the
+   triangle (the sphere intersection on the model's side of the triangle, the mirror one
+   rejected). Every consistent triangle votes there.
+4. **Accumulator maxima.** Votes are binned in a 3-D accumulator (bin ``bin_size``); at each of
+   the ``max_peaks`` fullest cells the voting triangles are clustered by rotation (the paper's
+   "any of the maxima may be chosen" for symmetric models: each cluster is a hypothesis).
+5. **Verification.** Every hypothesis is refined by point-to-plane ICP and scored
+   (``mks_sim.models.refine``); symmetric equivalents are reported once.
+
+``P0`` is the centroid of the model surface: it lies on every symmetry axis, so that symmetric
+equivalents vote for the same location (the paper's distinct-radii condition serves its
+labelling step, which the triangle fit replaces).
+
+This is not point-pair-feature voting: no feature of a pair of oriented points is hashed and
+no (model point, angle) space is voted in; pairs are only checked for rigid distance
+consistency, and votes go to the reference point's location as in the paper.
+
+Hot paths are vectorised (signatures, pairing, triangle enumeration, batched fits, voting).
+Tables (model points, signatures, surface) save to and load from ``.npz``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from mks_sim.errors import DataError
+from mks_sim.geometry.keypoints import (
+    estimate_normals_pca,
+    local_signatures,
+    nms_keypoints,
+    voxel_downsample,
+)
+from mks_sim.geometry.meshes import Mesh, sample_surface
+from mks_sim.geometry.scan import scan_scene
+from mks_sim.models.pose import PoseHypothesis
+from mks_sim.models.refine import ModelSurface, VerifiedHypothesis, verify_hypotheses
+
+__all__ = ["FreeformConfig", "FreeformModel", "FreeformResult"]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FreeformConfig:
+    """Parameters of the free-form model; ``None`` means "derived from the model size".
+
+    Lengths are in the model's units. ``size`` is the diagonal of the model's bounding box;
+    ``s = spacing`` (default ``size / 60``).
+
+    Attributes:
+        spacing: surface sampling spacing ``s``.
+        radii: the two signature ball radii (default ``(4 s, 8 s)``).
+        keypoint_radius: non-maximum-suppression radius of scene keypoints (default ``2 s``).
+        model_point_spacing: spacing of candidate model points (default ``1.5 s``).
+        saliency_floor: minimum saliency (surface variation summed over both scales) of a
+            keypoint / model point; default: the 20th percentile over the model's candidate
+            points, at least 0.01 (a plane with noise sigma = s / 4 stays below).
+        n_views: virtual views of the model for view-dependent signatures.
+        matches_per_keypoint: model points paired with each scene keypoint.
+        distance_tolerance: rigid distance consistency (default ``3 s``).
+        min_side: minimum triangle side (default ``0.1 size``).
+        max_triangles: cap on voting triangles (random subset beyond, seeded).
+        bin_size: accumulator bin (default ``0.05 size``).
+        max_peaks: accumulator maxima examined.
+        modes_per_peak: rotation clusters taken per maximum.
+        mode_angle_deg: rotation cluster radius.
+        normal_tolerance_deg: a triangle's fit must map the model normals at its corners to
+            within this angle of the scene normals (a check of the transform, not a feature).
+        retry_votes: below this many votes at the best maximum, pairing is widened (see
+            :meth:`FreeformModel.hypotheses`).
+        seed: seed of every random choice.
+    """
+
+    spacing: float | None = None
+    radii: tuple[float, float] | None = None
+    keypoint_radius: float | None = None
+    model_point_spacing: float | None = None
+    saliency_floor: float | None = None
+    n_views: int = 20
+    matches_per_keypoint: int = 8
+    distance_tolerance: float | None = None
+    min_side: float | None = None
+    max_triangles: int = 60000
+    bin_size: float | None = None
+    max_peaks: int = 10
+    modes_per_peak: int = 2
+    mode_angle_deg: float = 12.0
+    normal_tolerance_deg: float = 40.0
+    retry_votes: int = 40
+    seed: int = 0
+
+    def resolved(self, size: float) -> FreeformConfig:
+        """A copy with every ``None`` replaced by its default for a model of this size."""
+        s = self.spacing or size / 60.0
+        return replace(
+            self,
+            spacing=s,
+            radii=self.radii or (4.0 * s, 8.0 * s),
+            keypoint_radius=self.keypoint_radius or 2.0 * s,
+            model_point_spacing=self.model_point_spacing or 1.5 * s,
+            distance_tolerance=self.distance_tolerance or 3.0 * s,
+            min_side=self.min_side or 0.1 * size,
+            bin_size=self.bin_size or 0.05 * size,
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class FreeformResult:
+    """Hypotheses for one scene, best first, with timing and counts (for reports)."""
+
+    hypotheses: list[PoseHypothesis]
+    n_keypoints: int
+    n_pairings: int
+    n_triangles: int
+
+
+def _fibonacci_sphere(n: int) -> FloatArray:
+    i = np.arange(n) + 0.5
+    phi = np.arccos(1 - 2 * i / n)
+    theta = np.pi * (1 + 5**0.5) * i
+    return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], 1)
+
+
+def _batched_rigid(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Kabsch fits of (T, k, 3) -> (T, k, 3): rotations (T, 3, 3), translations (T, 3)."""
+    cs, cd = src.mean(axis=1), dst.mean(axis=1)
+    h = np.einsum("tki,tkj->tij", src - cs[:, None], dst - cd[:, None])
+    u, _, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", u, vt)))
+    vt = vt.copy()
+    vt[:, 2, :] *= d[:, None]  # reflection guard: the sphere intersection on the model's side
+    r = np.einsum("tji,tkj->tik", vt, u)  # R = V U^T
+    t = cd - np.einsum("tij,tj->ti", r, cs)
+    return r, t
+
+
+class FreeformModel:
+    """A free-form object for the rotation-invariant Hough matcher (implements the
+    ``LocalizableModel`` protocol of ``mks_sim.localize``).
+
+    Build with :meth:`from_mesh` (or :meth:`from_points`), save with :meth:`save`, reload with
+    :meth:`load`.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        config: FreeformConfig,
+        surface_points: FloatArray,
+        surface_normals: FloatArray,
+        model_points: FloatArray,
+        model_normals: FloatArray,
+        signatures: FloatArray,
+        reference_point: FloatArray,
+        symmetries: FloatArray | None = None,
+    ) -> None:
+        self.name = name
+        self.config = config
+        self._surface_points = surface_points
+        self._surface_normals = surface_normals
+        self.model_points = model_points  # (M, 3)
+        self.model_normals = model_normals  # (M, 3)
+        self.signatures = signatures  # (M, V, 6), NaN where invisible
+        self.reference_point = reference_point  # (3,)
+        self._symmetries = symmetries
+        flat = signatures.reshape(-1, signatures.shape[-1])
+        good = np.all(np.isfinite(flat), axis=1)
+        if not good.any():
+            raise DataError(f"freeform model {name!r}: no model point has a signature")
+        self._sig_scale = np.maximum(np.nanstd(flat[good], axis=0), 1e-6)
+        self._sig_flat = flat[good] / self._sig_scale
+        self._sig_owner = np.repeat(np.arange(len(model_points)), signatures.shape[1])[good]
+        self._sig_tree = cKDTree(self._sig_flat)
+        self._model_dist = np.linalg.norm(model_points[:, None] - model_points[None], axis=-1)
+
+    # --- construction -------------------------------------------------------------------
+
+    @property
+    def size(self) -> float:
+        """Diagonal of the model's bounding box (model units)."""
+        return float(np.linalg.norm(np.ptp(self._surface_points, axis=0)))
+
+    @classmethod
+    def from_mesh(
+        cls,
+        mesh: Mesh,
+        name: str = "freeform",
+        config: FreeformConfig | None = None,
+        symmetries: ArrayLike | None = None,
+    ) -> FreeformModel:
+        """Build the model's tables from a closed triangle mesh (model frame, model units)."""
+        size = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
+        if not size > 0:
+            raise DataError(f"freeform model {name!r}: mesh has zero size")
+        cfg = (config or FreeformConfig()).resolved(size)
+        assert cfg.spacing is not None and cfg.radii is not None
+        rng = np.random.default_rng(cfg.seed)
+        pts, nrm = sample_surface(mesh, spacing=cfg.spacing / 2.0, rng=rng)
+        keep = voxel_downsample(pts, cfg.spacing)
+        surf, surf_n = pts[keep], nrm[keep]
+        # Views: a ring of cameras at 3 size around the centroid.
+        centre = mesh.centroid
+        views = []
+        for d in _fibonacci_sphere(cfg.n_views):
+            up = (0.0, 0.0, 1.0) if abs(d[2]) < 0.95 else (1.0, 0.0, 0.0)
+            res = scan_scene(
+                mesh,
+                np.eye(4),
+                centre + 3.0 * size * d,
+                centre,
+                width=128,
+                height=128,
+                fov_deg=30.0,
+                up=up,
+            )
+            views.append(res.points)
+        return cls._from_views(name, cfg, surf, surf_n, views, symmetries)
+
+    @classmethod
+    def from_points(
+        cls,
+        points: ArrayLike,
+        normals: ArrayLike,
+        name: str = "freeform",
+        config: FreeformConfig | None = None,
+        symmetries: ArrayLike | None = None,
+    ) -> FreeformModel:
+        """Build from a dense model point set with outward normals (no views: every model
+        point gets one signature from the whole surface)."""
+        p = np.asarray(points, dtype=np.float64)
+        n = np.asarray(normals, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3 or p.shape != n.shape or len(p) < 10:
+            raise DataError(
+                f"from_points: expected (M >= 10, 3) points and normals, got {p.shape}, {n.shape}"
+            )
+        size = float(np.linalg.norm(np.ptp(p, axis=0)))
+        cfg = (config or FreeformConfig()).resolved(size)
+        assert cfg.spacing is not None
+        keep = voxel_downsample(p, cfg.spacing)
+        return cls._from_views(name, cfg, p[keep], n[keep], [p], symmetries)
+
+    @classmethod
+    def _from_views(
+        cls,
+        name: str,
+        cfg: FreeformConfig,
+        surf: FloatArray,
+        surf_n: FloatArray,
+        views: list[FloatArray],
+        symmetries: ArrayLike | None,
+    ) -> FreeformModel:
+        assert cfg.radii is not None and cfg.model_point_spacing is not None
+        assert cfg.spacing is not None
+        cand = voxel_downsample(surf, cfg.model_point_spacing)
+        mp = surf[cand]
+        mn = _pca_normals(surf, surf_n, mp, cfg.radii[0])
+        sig = np.full((len(mp), len(views), 6), np.nan)
+        for v, cloud in enumerate(views):
+            if len(cloud) < 10:
+                continue
+            d, _ = cKDTree(cloud).query(mp)
+            vis = d < cfg.spacing
+            if vis.any():
+                sig[vis, v] = local_signatures(cloud, mp[vis], mn[vis], cfg.radii)
+        sal = _saliency(sig)  # (M, V)
+        salient = np.max(np.where(np.isfinite(sal), sal, -1.0), axis=1)
+        if cfg.saliency_floor is None:
+            # The most salient 80 % of the model's candidate points, never flat regions.
+            seen = salient[salient >= 0]
+            floor = max(0.01, float(np.quantile(seen, 0.2))) if seen.size else 0.01
+            cfg = replace(cfg, saliency_floor=floor)
+        assert cfg.saliency_floor is not None
+        keep = salient > cfg.saliency_floor
+        if keep.sum() < 3:
+            raise DataError(
+                f"freeform model {name!r}: only {keep.sum()} salient model points "
+                f"(surface variation > {cfg.saliency_floor}); lower saliency_floor or spacing"
+            )
+        ref = surf.mean(axis=0)
+        syms = None if symmetries is None else np.asarray(symmetries, dtype=np.float64)
+        log.info(
+            "freeform %s: %d model points of %d candidates, %d views",
+            name,
+            keep.sum(),
+            len(mp),
+            len(views),
+        )
+        return cls(name, cfg, surf, surf_n, mp[keep], mn[keep], sig[keep], ref, syms)
+
+    # --- persistence --------------------------------------------------------------------
+
+    def save(self, path: str | Path) -> None:
+        """Save the configuration-time tables to ``.npz``."""
+        np.savez_compressed(
+            path,
+            name=np.array(self.name),
+            config=np.array(json.dumps(asdict(self.config))),
+            surface_points=self._surface_points,
+            surface_normals=self._surface_normals,
+            model_points=self.model_points,
+            model_normals=self.model_normals,
+            signatures=self.signatures,
+            reference_point=self.reference_point,
+            symmetries=np.zeros((0, 3, 3)) if self._symmetries is None else self._symmetries,
+        )
+
+    @classmethod
+    def load(cls, path: str | Path) -> FreeformModel:
+        """Load tables saved by :meth:`save`."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                cfg_d: dict[str, Any] = json.loads(str(z["config"]))
+                if cfg_d.get("radii") is not None:
+                    cfg_d["radii"] = tuple(cfg_d["radii"])
+                syms = z["symmetries"]
+                return cls(
+                    str(z["name"]),
+                    FreeformConfig(**cfg_d),
+                    z["surface_points"],
+                    z["surface_normals"],
+                    z["model_points"],
+                    z["model_normals"],
+                    z["signatures"],
+                    z["reference_point"],
+                    syms if len(syms) else None,
+                )
+        except (KeyError, ValueError, OSError, TypeError) as exc:
+            raise DataError(f"{path.name}: not a freeform model table ({exc})") from exc
+
+    # --- LocalizableModel protocol ------------------------------------------------------
+
+    def surface_points(self) -> FloatArray:
+        """(M, 3) model surface samples, model frame."""
+        return self._surface_points
+
+    def surface_normals(self) -> FloatArray:
+        """(M, 3) outward unit normals of :meth:`surface_points`."""
+        return self._surface_normals
+
+    def symmetries(self) -> FloatArray | None:
+        """(S, 3, 3) model symmetries given at construction, or None."""
+        return self._symmetries
+
+    def hypotheses(
+        self, scene_points: ArrayLike, scene_normals: ArrayLike | None = None
+    ) -> list[PoseHypothesis]:
+        """Pose hypotheses (model -> scene), most voted first; see the module docstring.
+
+        When the fullest accumulator cell holds fewer than ``retry_votes`` votes (few
+        keypoints paired correctly), pairing is widened to ``3 x matches_per_keypoint`` and the
+        hypotheses of both runs are returned.
+        """
+        res = self.detect(scene_points, scene_normals)
+        hyps = res.hypotheses
+        top = hyps[0].votes if hyps else 0
+        if top < self.config.retry_votes:
+            wide = self.detect(
+                scene_points, scene_normals, matches=3 * self.config.matches_per_keypoint
+            )
+            hyps = sorted(hyps + wide.hypotheses, key=lambda h: -h.votes)
+        return hyps
+
+    def localize(
+        self,
+        scene_points: ArrayLike,
+        scene_normals: ArrayLike | None = None,
+        *,
+        inlier_distance: float | None = None,
+        max_icp: int = 20,
+    ) -> list[VerifiedHypothesis]:
+        """Hypotheses refined by ICP and scored (``mks_sim.models.refine``), best first.
+
+        A convenience for one segment (``mks_sim.localize.localize_cloud`` does table removal
+        and segmentation first). ``inlier_distance`` defaults to the spacing.
+        """
+        scene = np.asarray(scene_points, dtype=np.float64)
+        hyps = self.hypotheses(scene, scene_normals)
+        surface = ModelSurface.from_arrays(self._surface_points, self._surface_normals)
+        return verify_hypotheses(
+            hyps,
+            surface,
+            scene,
+            inlier_distance=inlier_distance or float(self.config.spacing or 0.0),
+            symmetries=self._symmetries,
+            max_icp=max_icp,
+        )
+
+    def scaled(self, factor: float) -> FreeformModel:
+        """The same model with every length multiplied by ``factor`` (e.g. 0.001: mm -> m).
+
+        Signatures are dimensionless, so the tables are reused.
+        """
+        if not factor > 0:
+            raise DataError(f"freeform {self.name}: scale must be > 0, got {factor}")
+        c = self.config
+
+        def sc(v: float | None) -> float | None:
+            return None if v is None else v * factor
+
+        cfg = replace(
+            c,
+            spacing=sc(c.spacing),
+            radii=None if c.radii is None else (c.radii[0] * factor, c.radii[1] * factor),
+            keypoint_radius=sc(c.keypoint_radius),
+            model_point_spacing=sc(c.model_point_spacing),
+            distance_tolerance=sc(c.distance_tolerance),
+            min_side=sc(c.min_side),
+            bin_size=sc(c.bin_size),
+        )
+        return FreeformModel(
+            self.name,
+            cfg,
+            self._surface_points * factor,
+            self._surface_normals,
+            self.model_points * factor,
+            self.model_normals,
+            self.signatures,
+            self.reference_point * factor,
+            self._symmetries,
+        )
+
+    # --- detection ----------------------------------------------------------------------
+
+    def scene_keypoints(
+        self, scene_points: FloatArray, scene_normals: FloatArray | None
+    ) -> tuple[NDArray[np.int64], FloatArray, FloatArray]:
+        """Scene keypoint indices (into ``scene_points``), (K, 6) signatures, (K, 3) normals."""
+        cfg = self.config
+        assert cfg.spacing is not None and cfg.radii is not None and cfg.keypoint_radius is not None
+        sub = voxel_downsample(scene_points, cfg.spacing)
+        p = scene_points[sub]
+        if scene_normals is None:
+            n = estimate_normals_pca(p, cfg.radii[0])
+        else:
+            n = _pca_normals(scene_points, scene_normals, p, cfg.radii[0])
+        sig = local_signatures(scene_points, p, n, cfg.radii)
+        assert cfg.saliency_floor is not None
+        kp = nms_keypoints(p, _saliency(sig), cfg.keypoint_radius, cfg.saliency_floor)
+        kp = kp[np.all(np.isfinite(sig[kp]), axis=1)]
+        return sub[kp], sig[kp], n[kp]
+
+    def detect(
+        self,
+        scene_points: ArrayLike,
+        scene_normals: ArrayLike | None = None,
+        *,
+        matches: int | None = None,
+    ) -> FreeformResult:
+        """Run steps 1-4 of the module docstring on one scene segment.
+
+        Args:
+            scene_points: (N, 3) one scene segment, model units, finite.
+            scene_normals: (N, 3) normals oriented towards the sensor, or None (estimated;
+                then the normal check is sign-free).
+            matches: model points paired per keypoint (default ``matches_per_keypoint``).
+        """
+        cfg = self.config
+        assert cfg.distance_tolerance is not None and cfg.min_side is not None
+        assert cfg.bin_size is not None
+        scene = np.asarray(scene_points, dtype=np.float64)
+        if scene.ndim != 2 or scene.shape[1] != 3:
+            raise DataError(
+                f"freeform {self.name}: expected (N, 3) scene points, got {scene.shape}"
+            )
+        finite = np.all(np.isfinite(scene), axis=1)
+        if not finite.all():
+            raise DataError(
+                f"freeform {self.name}: {int((~finite).sum())} scene points are NaN/inf "
+                "(drop them first: read_point_cloud does)"
+            )
+        normals = None if scene_normals is None else np.asarray(scene_normals, dtype=np.float64)
+        if len(scene) < 20:
+            return FreeformResult([], 0, 0, 0)
+        kp_idx, kp_sig, kp_n = self.scene_keypoints(scene, normals)
+        if len(kp_idx) < 3:
+            return FreeformResult([], len(kp_idx), 0, 0)
+        # Pairing: each keypoint with the model points of nearest signature (any view).
+        n_match = matches or cfg.matches_per_keypoint
+        k = min(len(self._sig_flat), n_match * 4)
+        _, j = self._sig_tree.query(kp_sig / self._sig_scale, k=k)
+        j = j.reshape(len(kp_idx), -1)
+        owners = self._sig_owner[j]  # (K, k) model point per signature, repeats across views
+        pair_s, pair_m = _first_distinct(owners, n_match)
+        s_pos = scene[kp_idx[pair_s]]  # (C, 3)
+        m_pos = self.model_points[pair_m]
+        n_pair = len(pair_s)
+        # Rigid consistency of every two pairings (C x C).
+        ds = np.linalg.norm(s_pos[:, None] - s_pos[None], axis=-1)
+        dm = self._model_dist[pair_m][:, pair_m]
+        cons = (np.abs(ds - dm) <= cfg.distance_tolerance) & (ds >= cfg.min_side)
+        tri = _triangles(cons, cfg.max_triangles, np.random.default_rng(cfg.seed))
+        if len(tri) == 0:
+            return FreeformResult([], len(kp_idx), n_pair, 0)
+        rot, trans = _batched_rigid(m_pos[tri], s_pos[tri])
+        # Verify each triangle's rotation on its normals: the rotated model normals must agree
+        # with the scene normals at all three corners (sign-free when normals were estimated).
+        rn = np.einsum("tij,tkj->tki", rot, self.model_normals[pair_m][tri])  # (T, 3, 3)
+        dots = np.einsum("tki,tki->tk", rn, kp_n[pair_s][tri])
+        if normals is None:
+            dots = np.abs(dots)
+        good = np.all(dots >= np.cos(np.radians(cfg.normal_tolerance_deg)), axis=1)
+        tri, rot, trans = tri[good], rot[good], trans[good]
+        if len(tri) == 0:
+            return FreeformResult([], len(kp_idx), n_pair, 0)
+        ref = np.einsum("tij,j->ti", rot, self.reference_point) + trans  # (T, 3) votes for P0
+        hyps = self._peaks(ref, rot, trans, tri, kp_idx[pair_s], pair_m)
+        return FreeformResult(hyps, len(kp_idx), n_pair, len(tri))
+
+    def _peaks(
+        self,
+        ref: FloatArray,
+        rot: FloatArray,
+        trans: FloatArray,
+        tri: NDArray[np.int64],
+        scene_index: NDArray[np.int64],
+        model_index: NDArray[np.int64],
+    ) -> list[PoseHypothesis]:
+        cfg = self.config
+        assert cfg.bin_size is not None
+        b = cfg.bin_size
+        cell = np.floor(ref / b).astype(np.int64)
+        uniq, inv, counts = np.unique(cell, axis=0, return_inverse=True, return_counts=True)
+        inv = inv.reshape(-1)
+        # Sum each cell's votes with its 26 neighbours (a bin edge must not split a peak).
+        lookup = {tuple(c): i for i, c in enumerate(uniq)}
+        offs = np.array([[a, b_, c] for a in (-1, 0, 1) for b_ in (-1, 0, 1) for c in (-1, 0, 1)])
+        nb_idx = np.array(
+            [[lookup.get(tuple(c + o), -1) for o in offs] for c in uniq]
+        )  # (U, 27); U is the number of occupied cells (small)
+        smooth = np.where(nb_idx >= 0, counts[np.maximum(nb_idx, 0)], 0).sum(axis=1)
+        order = np.argsort(-smooth, kind="stable")
+        out: list[PoseHypothesis] = []
+        used: list[FloatArray] = []
+        tree = cKDTree(ref)
+        cos_thr = np.cos(np.radians(cfg.mode_angle_deg))
+        for u in order:
+            if len(used) >= cfg.max_peaks:
+                break
+            centre = ref[inv == u].mean(axis=0)
+            if any(np.linalg.norm(centre - c) < 1.5 * b for c in used):
+                continue
+            used.append(centre)
+            members = np.asarray(tree.query_ball_point(centre, 1.5 * b), dtype=np.int64)
+            if len(members) > 400:
+                members = np.sort(
+                    np.random.default_rng(cfg.seed).choice(members, 400, replace=False)
+                )
+            r = rot[members]
+            # Pairwise rotation similarity: cos(angle) = (trace(Ri^T Rj) - 1) / 2.
+            cos = (np.einsum("aij,bij->ab", r, r) - 1.0) / 2.0
+            close = cos >= cos_thr
+            free = np.ones(len(members), bool)
+            for _ in range(cfg.modes_per_peak):
+                support = (close & free[None, :]).sum(axis=1) * free
+                best = int(np.argmax(support))
+                if support[best] < 3:
+                    break
+                mode = close[best] & free
+                free &= ~mode
+                mm = members[mode]
+                rm = _mean_rotation(rot[mm])
+                p0 = ref[mm].mean(axis=0)
+                matrix = np.eye(4)
+                matrix[:3, :3] = rm
+                matrix[:3, 3] = p0 - rm @ self.reference_point
+                pairs = np.unique(
+                    np.stack([scene_index[tri[mm]].ravel(), model_index[tri[mm]].ravel()], 1),
+                    axis=0,
+                )
+                out.append(
+                    PoseHypothesis(
+                        matrix=matrix,
+                        reference_point=p0,
+                        votes=int(mode.sum()),
+                        correspondences=pairs,
+                    )
+                )
+        out.sort(key=lambda h: -h.votes)
+        return out
+
+
+def _saliency(sig: FloatArray) -> FloatArray:
+    """Keypoint saliency: surface variation summed over the two scales (the small scale
+    localises corners and rims, the large one finds the gentle bumps of smooth shapes)."""
+    return sig[..., 0] + sig[..., 3]
+
+
+def _pca_normals(
+    cloud: FloatArray, cloud_normals: FloatArray, queries: FloatArray, radius: float
+) -> FloatArray:
+    """(Q, 3) PCA normals over balls of ``radius``, signed to agree with the mean of the
+    given (oriented) normals in each ball."""
+    tree = cKDTree(cloud)
+    d, j = tree.query(queries, k=min(48, len(cloud)), distance_upper_bound=radius)
+    ok = np.isfinite(d)
+    jj = np.minimum(j, len(cloud) - 1)
+    nb = cloud[jj]
+    w = ok[..., None].astype(np.float64)
+    cnt = np.maximum(ok.sum(axis=1), 1)[:, None]
+    c = (nb * w).sum(axis=1) / cnt
+    x = (nb - c[:, None]) * w
+    _, vec = np.linalg.eigh(np.einsum("qki,qkj->qij", x, x))
+    n = vec[:, :, 0]
+    mean_n = (cloud_normals[jj] * w).sum(axis=1)
+    sign = np.where(np.einsum("ij,ij->i", n, mean_n) < 0, -1.0, 1.0)
+    return n * sign[:, None]
+
+
+def _mean_rotation(r: FloatArray) -> FloatArray:
+    """The rotation nearest the arithmetic mean of rotations (chordal L2 mean)."""
+    u, _, vt = np.linalg.svd(r.mean(axis=0))
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
+def _first_distinct(
+    owners: NDArray[np.int64], m: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Per row, the first ``m`` distinct values: returns (row, value) pairs."""
+    k = owners.shape[1]
+    eq = owners[:, :, None] == owners[:, None, :]  # (K, k, k)
+    earlier = np.tril(np.ones((k, k), bool), -1)
+    first = ~np.any(eq & earlier[None], axis=2)
+    rank = np.cumsum(first, axis=1)
+    take = first & (rank <= m)
+    rows, cols = np.nonzero(take)
+    return rows.astype(np.int64), owners[rows, cols].astype(np.int64)
+
+
+def _triangles(cons: NDArray[np.bool_], cap: int, rng: np.random.Generator) -> NDArray[np.int64]:
+    """(T, 3) index triples a < b < c with all three pairs consistent (at most ``cap``)."""
+    a, b = np.nonzero(np.triu(cons, 1))
+    if len(a) == 0:
+        return np.zeros((0, 3), np.int64)
+    # Expected triangle count ~ edges * mean degree; thin the edge list to stay near the cap.
+    deg = cons.sum(axis=1).mean()
+    est = len(a) * max(deg, 1.0) / 3.0
+    if est > cap:
+        keep = rng.random(len(a)) < cap / est
+        a, b = a[keep], b[keep]
+    out = []
+    chunk = max(1, 2_000_000 // cons.shape[0])
+    for s in range(0, len(a), chunk):
+        aa, bb = a[s : s + chunk], b[s : s + chunk]
+        common = cons[aa] & cons[bb]  # (E, C)
+        e, c = np.nonzero(common)
+        ok = c > bb[e]
+        out.append(np.stack([aa[e[ok]], bb[e[ok]], c[ok]], 1))
+    tri = np.concatenate(out) if out else np.zeros((0, 3), np.int64)
+    if len(tri) > cap:
+        tri = tri[np.sort(rng.choice(len(tri), cap, replace=False))]
+    return tri.astype(np.int64)
+
+
+# --- model database kind "freeform" ---------------------------------------------------------
+
+#: Built-in meshes a database entry can name with ``mesh = "builtin:<name>"``.
+BUILTIN_MESHES = ("industrial_part", "torus", "blob")
+
+
+def axial_symmetries(step_deg: float = 1.0, flip: bool = True) -> FloatArray:
+    """(S, 3, 3) rotations about z in ``step_deg`` steps (and the 180-degree flips about
+    horizontal axes when ``flip``): the symmetries of a torus or cylinder, discretised."""
+    from scipy.spatial.transform import Rotation
+
+    ang = np.arange(step_deg, 360.0, step_deg)
+    rz = Rotation.from_euler("z", ang[:, None], degrees=True).as_matrix()
+    if not flip:
+        return rz
+    fx = Rotation.from_euler("x", 180.0, degrees=True).as_matrix()
+    return np.concatenate([rz, rz @ fx, fx[None]])
+
+
+def _builtin_mesh(name: str) -> Mesh:
+    from mks_sim.geometry import meshes
+
+    if name == "industrial_part":
+        return meshes.industrial_part_mesh()
+    if name == "torus":
+        return meshes.torus_mesh()
+    if name == "blob":
+        return meshes.blob_mesh()
+    raise DataError(f"unknown builtin mesh {name!r}; known: {list(BUILTIN_MESHES)}")
+
+
+def load_freeform_entry(entry: Any, where: str) -> FreeformModel:
+    """Database loader of ``kind = "freeform"`` entries.
+
+    Entry fields: ``name``; ``mesh`` (a mesh file, path relative to the TOML file's folder
+    allowed via the database, or ``"builtin:industrial_part" | "builtin:torus" |
+    "builtin:blob"``); optional ``tables`` (an ``.npz`` saved by :meth:`FreeformModel.save`,
+    used instead of rebuilding when it exists); ``scale`` (model units -> metres, default 1);
+    ``symmetry`` (``"none"`` | ``"axial"``); ``config`` (a table of :class:`FreeformConfig`
+    fields).
+    """
+    from mks_sim.errors import SpecError
+
+    name = str(entry.get("name", "freeform"))
+    tables = entry.get("tables")
+    if tables is not None and Path(tables).is_file():
+        model = FreeformModel.load(tables)
+    else:
+        mesh_spec = entry.get("mesh")
+        if not isinstance(mesh_spec, str):
+            raise SpecError(f"{where}: field 'mesh': expected a mesh file or 'builtin:<name>'")
+        if mesh_spec.startswith("builtin:"):
+            mesh = _builtin_mesh(mesh_spec.split(":", 1)[1])
+        else:
+            from mks_sim.io.mesh import read_mesh
+
+            mesh = read_mesh(mesh_spec)
+        cfg_fields = dict(entry.get("config", {}))
+        if "radii" in cfg_fields:
+            cfg_fields["radii"] = tuple(cfg_fields["radii"])
+        try:
+            cfg = FreeformConfig(**cfg_fields)
+        except TypeError as exc:
+            raise SpecError(f"{where}: field 'config': {exc}") from exc
+        sym = entry.get("symmetry", "none")
+        if sym not in ("none", "axial"):
+            raise SpecError(f"{where}: field 'symmetry': expected 'none' or 'axial', got {sym!r}")
+        syms = axial_symmetries() if sym == "axial" else None
+        model = FreeformModel.from_mesh(mesh, name, cfg, syms)
+        if tables is not None:
+            model.save(tables)
+    scale = float(entry.get("scale", 1.0))
+    return model if scale == 1.0 else model.scaled(scale)
+
+
+def _register() -> None:
+    try:
+        from mks_sim.models.database import register_model_kind
+    except ImportError:  # the database room may not exist in a stripped-down install
+        return
+    register_model_kind("freeform", load_freeform_entry)
+
+
+_register()
