@@ -470,7 +470,12 @@ def plane_pair_hypotheses(
             mid_m = (ae.max() + ae.min()) / 2
             lhs = np.stack([P.normal, Q.normal, e])
             rhs = np.array([P.offset - A.offset, Q.offset - B.offset, mid_s - mid_m])
-            t = np.linalg.solve(lhs, rhs)
+            try:
+                t = np.linalg.solve(lhs, rhs)
+            except np.linalg.LinAlgError:
+                continue
+            if not (np.all(np.isfinite(t)) and np.all(np.isfinite(R))):
+                continue
             T = make_transform(R, t)
             out.append((score_pose(model.surface, sub, T, inlier_distance)[1], T))
     out.sort(key=lambda o: -o[0])
@@ -507,7 +512,8 @@ class SegmentReport:
     """What grouping found in one object segment.
 
     Attributes:
-        indices: (n,) indices of the segment's points in the (NaN-free) scene.
+        indices: (n,) indices of the segment's points in the NaN-free scene (in the
+            voxel-averaged scene when :attr:`Localization.voxel` > 0).
         planes: planar regions (indices into the segment).
         vertexes: detected vertexes (segment frame = scene frame).
         on_table: the table plane was used as a face of this segment.
@@ -533,7 +539,9 @@ class Localization:
         segment_of: per hypothesis, the index into ``segments``.
         segments: grouping diagnostics per object segment.
         table: the removed table plane (normal towards the objects) or None.
-        spacing: median SPG edge length of the scene (its sampling spacing).
+        spacing: median nearest-neighbour distance of the (averaged) scene.
+        noise: estimated noise sigma of the (averaged) scene (RMS distance from local planes).
+        voxel: voxel edge the scene was averaged on (0: not averaged).
         dropped_nan: NaN/inf scene rows dropped on input.
         timing: seconds per stage (``graph``, ``table``, ``grouping``, ``matching``,
             ``refinement``, ``total``).
@@ -547,6 +555,8 @@ class Localization:
     segments: tuple[SegmentReport, ...]
     table: Plane | None
     spacing: float
+    noise: float
+    voxel: float
     dropped_nan: int
     timing: dict[str, float]
 
@@ -556,9 +566,35 @@ class Localization:
         return self.hypotheses[0] if self.hypotheses else None
 
 
+def voxel_average(points: FloatArray, voxel: float) -> FloatArray:
+    """(M, 3) centroids of the points in each occupied cube of edge ``voxel``."""
+    keys = np.floor(points / voxel).astype(np.int64)
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    out = np.zeros((len(counts), 3))
+    for d in range(3):
+        out[:, d] = np.bincount(inverse, weights=points[:, d]) / counts
+    return out
+
+
+def _spacing_and_noise(points: FloatArray, rng: np.random.Generator) -> tuple[float, float]:
+    """Median nearest-neighbour distance and a noise estimate (median RMS distance of 12
+    nearest neighbours from their fitted plane; the planar majority of a scene dominates)."""
+    n = len(points)
+    probe = points if n <= 3000 else points[rng.choice(n, 3000, replace=False)]
+    k = min(12, n)
+    d, idx = cKDTree(points).query(probe, k=k)
+    spacing = float(np.median(d[:, 1])) if k > 1 else 0.0
+    nb = points[idx]  # (P, k, 3)
+    c = nb - nb.mean(axis=1, keepdims=True)
+    lam0 = np.linalg.eigvalsh(np.einsum("pki,pkj->pij", c, c) / k)[:, 0]
+    return spacing, float(np.median(np.sqrt(np.clip(lam0, 0.0, None))))
+
+
 def _find_table(
     points: FloatArray,
     spacing: float,
+    noise: float,
     viewpoint: FloatArray | None,
     rng: np.random.Generator,
     min_fraction: float = 0.2,
@@ -568,33 +604,35 @@ def _find_table(
     none = np.zeros(len(points), dtype=bool)
     if len(points) < 50:
         return None, none
-    plane, inl = fit_plane_ransac(points, max(1.0 * spacing, 1e-12), rng, iterations=150)
-    rest = points[~inl]
-    if inl.mean() < min_fraction or len(rest) < 10:
+    threshold = max(spacing, 3.0 * noise, 1e-12)
+    plane, _ = fit_plane_ransac(points, threshold, rng, iterations=150)
+    d = plane.distance(points)
+    # The band of the table: 4 robust sigmas of the residuals near the plane.
+    near = np.abs(d) <= 3.0 * threshold
+    band = max(threshold, 4.0 * 1.4826 * float(np.median(np.abs(d[near]))))
+    inl = np.abs(d) <= band
+    off = np.abs(d) > 2.0 * band  # clearly off the plane: objects (and outliers)
+    if inl.mean() < min_fraction or off.sum() < 10:
         return None, none
-    side = plane.distance(rest)
-    if np.mean(side > 0) < 0.5:
-        plane = plane.flipped()
-        side = -side
-    if np.mean(side > 0) < 0.95:
+    if np.mean(d[off] > 0) < 0.5:
+        plane, d = plane.flipped(), -d
+    if np.mean(d[off] > 0) < 0.95:
         return None, none
     if viewpoint is not None and plane.distance(viewpoint[None])[0] < 0:
         return None, none
-    # Footprint: the rest, projected into the plane, well inside the inliers' extent.
+    # Footprint: the objects, projected into the plane, well inside the inliers' extent.
     n = plane.normal
     u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
     u /= np.linalg.norm(u)
     w = np.cross(n, u)
     uv_in = points[inl] @ np.column_stack([u, w])
-    uv_rest = rest @ np.column_stack([u, w])
+    uv_off = points[off] @ np.column_stack([u, w])
     lo, hi = uv_in.min(axis=0), uv_in.max(axis=0)
     margin = 0.05 * (hi - lo) + 2 * spacing
-    inside = np.all((uv_rest > lo + margin) & (uv_rest < hi - margin), axis=1)
+    inside = np.all((uv_off > lo + margin) & (uv_off < hi - margin), axis=1)
     if inside.mean() < 0.9:
         return None, none
-    # Drop the points within the table band (a little wider than the RANSAC threshold).
-    band = np.abs(plane.distance(points)) <= 1.5 * spacing
-    return plane, band
+    return plane, inl
 
 
 def _as_localizable(model: Any, scale: float) -> LocalizableModel:
@@ -619,6 +657,7 @@ def localize_cloud(
     scale: float = 1.0,
     viewpoint: ArrayLike | None = None,
     table: Literal["auto", "none"] | Plane = "auto",
+    voxel: float | Literal["auto"] | None = "auto",
     m: int = 12,
     min_segment_points: int = 60,
     min_score: float = 0.5,
@@ -640,6 +679,9 @@ def localize_cloud(
         table: ``"auto"`` detects and removes a supporting plane (and uses it as the face the
             object rests on), ``"none"`` keeps every point, or a known :class:`Plane`
             (normal towards the objects).
+        voxel: ``"auto"`` averages the cloud on a voxel grid of edge max(spacing, 3 sigma)
+            when the estimated noise sigma exceeds 0.2 x the spacing; a number forces that
+            edge; None never averages.
         m: SPG neighbours.
         min_segment_points: smaller SPG components are ignored.
         min_score: ``found`` needs the best score at least this.
@@ -676,8 +718,20 @@ def localize_cloud(
     vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(3)
 
     t = time.perf_counter()
-    probe = pts if len(pts) <= 5000 else pts[rng.choice(len(pts), 5000, replace=False)]
-    spacing = float(np.median(cKDTree(pts).query(probe, k=2)[0][:, 1]))
+    spacing, noise = _spacing_and_noise(pts, rng)
+    voxel_size = 0.0
+    if voxel == "auto":
+        # Noise comparable to the spacing defeats PCA normals over one SPG ring: average the
+        # cloud on a voxel grid so the spacing is >= 3 sigma (noise falls with the averaging).
+        if noise > 0.2 * spacing:
+            voxel_size = max(spacing, 3.0 * noise)
+    elif voxel is not None:
+        voxel_size = float(voxel)
+    if voxel_size > 0:
+        pts = voxel_average(pts, voxel_size)
+        if len(pts) < 10:
+            raise DataError(f"localize_cloud: only {len(pts)} points left after voxel averaging")
+        spacing, noise = _spacing_and_noise(pts, rng)
     timing["graph"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -685,9 +739,9 @@ def localize_cloud(
     on_table_band = np.zeros(len(pts), dtype=bool)
     if isinstance(table, Plane):
         table_plane = table
-        on_table_band = np.abs(table.distance(pts)) <= 1.5 * spacing
+        on_table_band = np.abs(table.distance(pts)) <= 1.5 * max(spacing, 3.0 * noise)
     elif table == "auto":
-        table_plane, on_table_band = _find_table(pts, spacing, vp, rng)
+        table_plane, on_table_band = _find_table(pts, spacing, noise, vp, rng)
     elif table == "none":
         table_plane = None
     else:
@@ -794,6 +848,8 @@ def localize_cloud(
         segments=tuple(segments),
         table=table_plane,
         spacing=spacing,
+        noise=noise,
+        voxel=voxel_size,
         dropped_nan=dropped,
         timing=timing,
     )
