@@ -18,7 +18,7 @@ from mks_sim.errors import MksError
 HELP = "recompute the paper's case-study tables and print them beside the paper's"
 
 # Modules with report() -> (text, dict); other rooms append theirs.
-SECTIONS: tuple[str, ...] = ("mks_sim.paper.tables",)
+SECTIONS: tuple[str, ...] = ("mks_sim.paper.tables", "mks_sim.paper.hough_cases")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
