@@ -231,3 +231,17 @@ def test_model_kind_errors(tmp_path, body: str, match: str) -> None:
     with pytest.raises(SpecError, match=match) as info:
         ModelDatabase.from_files([p])
     assert "model 'bad'" in str(info.value)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_partial_view_with_outliers(seed: int) -> None:
+    # 4 of 8 points seen plus 2 spurious ones: outliers must not take the inliers' radii.
+    rng = np.random.default_rng(100 + seed)
+    model = rng.uniform(-1, 1, (8, 3))
+    T_true = make_transform(random_rotation(rng), [1, 2, 3])
+    det = np.vstack(
+        [apply(T_true, model[:4]) + rng.normal(0, 0.002, (4, 3)), rng.uniform(-3, 3, (2, 3))]
+    )
+    hyps = RotationInvariantHough(model, tolerance=0.01).detect(det)
+    pos, rot = _best_error(hyps, T_true)
+    assert pos < 0.02 and rot < 2.0

@@ -496,7 +496,9 @@ class RotationInvariantHough:
         """Pair detected points with model points of equal radius; fit the rigid motion."""
         dist = np.linalg.norm(D - pos, axis=1)
         cost = np.abs(dist[:, None] - self.radii[None, :])  # (m, n)
-        rows, cols = linear_sum_assignment(cost)
+        # Pairs beyond the tolerance all cost the same, so that an outlier cannot take the
+        # radius of an inlier to lower the total.
+        rows, cols = linear_sum_assignment(np.where(cost <= self.tolerance, cost, 1e6))
         ok = cost[rows, cols] <= self.tolerance
         det_idx, mod_idx = rows[ok], cols[ok]
         if len(det_idx) < 3:
@@ -505,7 +507,7 @@ class RotationInvariantHough:
         # Radii closer than the tolerance can be confused: re-pair by position once.
         moved = apply(T, self.points)
         cost2 = np.linalg.norm(D[:, None] - moved[None], axis=2)
-        r2, c2 = linear_sum_assignment(cost2)
+        r2, c2 = linear_sum_assignment(np.where(cost2 <= 2.0 * self.tolerance, cost2, 1e6))
         ok2 = cost2[r2, c2] <= 2.0 * self.tolerance
         n2 = int(ok2.sum())
         if n2 >= 3 and n2 >= len(det_idx):
