@@ -152,6 +152,9 @@ class PolyhedralModel:
     symmetry_rotations: FloatArray
     faces: tuple[ModelFace, ...]
     _surface: ModelSurface = field(repr=False)
+    _face_pairs: tuple[NDArray[np.intp], NDArray[np.intp], FloatArray, FloatArray] = field(
+        repr=False
+    )
 
     # ---- construction
 
@@ -251,8 +254,24 @@ class PolyhedralModel:
         surface = ModelSurface.from_arrays(points, normals)
         cpts = np.stack([c.point for c in corners])
         syms = detect_symmetries(cpts, cube_rotations(), 1e-3 * surface.size)
+        pairs = [
+            (a, b)
+            for a, b in itertools.permutations(range(len(faces)), 2)
+            if abs(float(faces[a].normal @ faces[b].normal)) <= 0.95
+        ]
+        pa = np.array([a for a, _ in pairs], dtype=np.intp)
+        pb = np.array([b for _, b in pairs], dtype=np.intp)
+        pcos = np.array([faces[a].normal @ faces[b].normal for a, b in pairs])
+        frames = np.array([_frame(faces[a].normal, faces[b].normal) for a, b in pairs])
         return cls(
-            name, tuple(corners), surface.points, surface.normals, syms, tuple(faces), surface
+            name,
+            tuple(corners),
+            surface.points,
+            surface.normals,
+            syms,
+            tuple(faces),
+            surface,
+            (pa, pb, pcos.reshape(-1), frames.reshape(-1, 3, 3)),
         )
 
     def scaled(self, factor: float) -> PolyhedralModel:
@@ -269,6 +288,12 @@ class PolyhedralModel:
     def vertexes(self) -> FloatArray:
         """(V, 3) the corner positions."""
         return np.stack([c.point for c in self.corners])
+
+    @property
+    def face_pairs(self) -> tuple[NDArray[np.intp], NDArray[np.intp], FloatArray, FloatArray]:
+        """Ordered pairs of non-parallel faces: (K,) first and second face indices, (K,)
+        cosines of their normals and (K, 3, 3) frames (see :func:`_frame`)."""
+        return self._face_pairs
 
     @property
     def surface(self) -> ModelSurface:
@@ -360,7 +385,7 @@ def vertex_hypotheses(
     *,
     vote_distance: float,
     max_angle_deg: float = 20.0,
-    keep: int = 200,
+    keep: int = 100,
 ) -> list[PoseHypothesis]:
     """Pose hypotheses from matching detected vertexes (with face normals) to model corners.
 
@@ -399,11 +424,13 @@ def vertex_hypotheses(
     out.extend(_rotinv_hypotheses(model, detected, vote_distance))
     if not out:
         return []
-    sub = scene_points[:: max(1, len(scene_points) // 300)]
+    # Rank by votes; break ties among the first ``keep`` by a quick inlier fraction.
+    sub = scene_points[:: max(1, len(scene_points) // 100)]
+    by_votes = sorted(out, key=lambda o: -o[0])[:keep]
     ranked = sorted(
-        out,
+        by_votes,
         key=lambda o: (-o[0], -score_pose(model.surface, sub, o[1], vote_distance / 2)[1]),
-    )[:keep]
+    )
     ref = model.vertexes.mean(axis=0)
     return [
         PoseHypothesis(T, T[:3, :3] @ ref + T[:3, 3], votes=v, correspondences=c)
@@ -444,10 +471,12 @@ def plane_pair_hypotheses(
         max_angle_deg: tolerance on the angle between the two normals.
         keep: hypotheses returned (best quick inlier fraction first).
     """
-    sub = scene_points[:: max(1, len(scene_points) // 200)]
+    sub = scene_points[:: max(1, len(scene_points) // 150)]
     faces = model.faces
+    pa, pb, pcos, pframes = model.face_pairs
     out: list[tuple[float, FloatArray]] = []
     cos_tol = np.sin(np.radians(max_angle_deg))
+    slack = 4 * inlier_distance
     for (P, p_pts), (Q, _) in itertools.permutations(planes, 2):
         if p_pts is None:
             continue
@@ -455,15 +484,15 @@ def plane_pair_hypotheses(
         if abs(cpq) > 0.9:
             continue
         frame_s = _frame(P.normal, Q.normal)
-        e = frame_s[:, 2]
-        f_dir = frame_s[:, 1]
+        e, f_dir = frame_s[:, 2], frame_s[:, 1]
         pe, pf = p_pts @ e, p_pts @ f_dir
-        for A, B in itertools.permutations(faces, 2):
-            if abs(float(A.normal @ B.normal) - cpq) > cos_tol:
-                continue
-            R = frame_s @ _frame(A.normal, B.normal).T
+        sel = np.flatnonzero(np.abs(pcos - cpq) <= cos_tol)
+        if sel.size == 0:
+            continue
+        Rs = np.einsum("ij,kjl->kil", frame_s, np.transpose(pframes[sel], (0, 2, 1)))
+        for k, R in zip(sel, Rs):
+            A, B = faces[pa[k]], faces[pb[k]]
             ae, af = A.points @ (R.T @ e), A.points @ (R.T @ f_dir)
-            slack = 4 * inlier_distance
             if np.ptp(pe) > np.ptp(ae) + slack or np.ptp(pf) > np.ptp(af) + slack:
                 continue
             mid_s = (pe.max() + pe.min()) / 2
@@ -484,24 +513,29 @@ def plane_pair_hypotheses(
 
 
 def _rotinv_hypotheses(
-    model: PolyhedralModel, detected: Vertexes, vote_distance: float
+    model: PolyhedralModel, detected: Vertexes, vote_distance: float, max_points: int = 6
 ) -> list[tuple[int, FloatArray, NDArray[np.int64]]]:
+    """Maxima of the rotation-invariant 3-D Hough (section 2.2.1) over the detected vertexes
+    (the ``max_points`` best supported: its cost grows with the cube of their number)."""
     if len(detected) < 3:
         return []
     try:
         from mks_sim.models.rotinv import RotationInvariantHough
-    except ImportError:
+    except ImportError:  # pragma: no cover - part of the package
         return []
+    order = np.argsort(detected.support, kind="stable")[:max_points]
     try:
-        hough = RotationInvariantHough(model.vertexes)
-        found = hough.detect(detected.points)
+        hough = RotationInvariantHough(model.vertexes, tolerance=vote_distance / 2)
+        found = hough.detect(detected.points[order])
     except MksError as exc:
         log.debug("rotation-invariant Hough gave nothing: %s", exc)
         return []
-    return [
-        (int(h.votes), np.asarray(h.matrix, dtype=np.float64), np.asarray(h.correspondences))
-        for h in found
-    ]
+    out = []
+    for h in found:
+        corr = np.asarray(h.correspondences, dtype=np.int64).reshape(-1, 2).copy()
+        corr[:, 0] = order[corr[:, 0]]  # back to indices into ``detected``
+        out.append((int(h.votes), np.asarray(h.matrix, dtype=np.float64), corr))
+    return out
 
 
 # --------------------------------------------------------------------------- the pipeline
@@ -662,7 +696,7 @@ def localize_cloud(
     min_segment_points: int = 60,
     min_score: float = 0.5,
     max_hypotheses: int = 10,
-    max_icp: int = 12,
+    max_icp: int = 8,
     rng: np.random.Generator | None = None,
 ) -> Localization:
     """Localize a model in a point cloud (paper section 4: SPG -> grouping -> Hough -> pose).
@@ -752,6 +786,11 @@ def localize_cloud(
     obj = pts[keep]
     timing["table"] = time.perf_counter() - t
 
+    surface = (
+        loc_model.surface
+        if isinstance(loc_model, PolyhedralModel)
+        else ModelSurface.from_arrays(loc_model.surface_points(), loc_model.surface_normals())
+    )
     t = time.perf_counter()
     segments: list[SegmentReport] = []
     seg_data: list[tuple[FloatArray, Segmentation | None]] = []
@@ -760,6 +799,7 @@ def localize_cloud(
         from scipy.sparse import csgraph
 
         _, comp = csgraph.connected_components(graph.adjacency, directed=True, connection="weak")
+        comp = _merge_components(obj, comp, surface.size)
         sizes = np.bincount(comp)
         for c in np.argsort(-sizes):
             if sizes[c] < min_segment_points:
@@ -775,11 +815,6 @@ def localize_cloud(
     t_refine = 0.0
     results: list[tuple[PoseHypothesis, FloatArray, float, int]] = []
     syms = loc_model.symmetries()
-    surface = (
-        loc_model.surface
-        if isinstance(loc_model, PolyhedralModel)
-        else ModelSurface.from_arrays(loc_model.surface_points(), loc_model.surface_normals())
-    )
     for si, (seg_pts, seg) in enumerate(seg_data):
         rep = segments[si]
         noise = float(np.median([p.plane.rmse for p in rep.planes])) if rep.planes else 0.0
@@ -820,7 +855,7 @@ def localize_cloud(
                 inlier_distance=inlier,
                 icp_distance=max(4 * inlier, 0.1 * surface.size),
                 symmetries=syms,
-                max_icp=max_icp,
+                max_icp=max(4, max_icp // 2),
                 rng=rng,
             )
             t_refine += time.perf_counter() - t
@@ -853,6 +888,48 @@ def localize_cloud(
         dropped_nan=dropped,
         timing=timing,
     )
+
+
+def _pca_extent(points: FloatArray) -> float:
+    """Diagonal of the bounding box in the points' principal axes (rotation invariant)."""
+    c = points - points.mean(axis=0)
+    _, _, vt = np.linalg.svd(c[:: max(1, len(c) // 2000)], full_matrices=False)
+    return float(np.linalg.norm(np.ptp(c @ vt.T, axis=0)))
+
+
+def _merge_components(
+    points: FloatArray, labels: NDArray[np.intp], model_size: float, min_points: int = 10
+) -> NDArray[np.intp]:
+    """Join SPG components that one object could span: self-occlusion splits an object
+    (a hidden step wall leaves a gap). Two components merge when they come within a quarter
+    of the model's size of each other and together still fit in 1.1 x its size."""
+    sizes = np.bincount(labels)
+    ids = [int(c) for c in np.flatnonzero(sizes >= min_points)]
+    if len(ids) < 2:
+        return labels
+    parent = {c: c for c in ids}
+
+    def root(c: int) -> int:
+        while parent[c] != c:
+            c = parent[c]
+        return c
+
+    members = {c: np.flatnonzero(labels == c) for c in ids}
+    trees = {c: cKDTree(points[members[c]]) for c in ids}
+    for a, b in itertools.combinations(ids, 2):
+        ra, rb = root(a), root(b)
+        if ra == rb:
+            continue
+        d, _ = trees[a].query(points[members[b]], distance_upper_bound=0.25 * model_size)
+        if not np.isfinite(d).any():
+            continue
+        joined = np.concatenate([members[c] for c in ids if root(c) in (ra, rb)])
+        if _pca_extent(points[joined]) <= 1.1 * model_size:
+            parent[rb] = ra
+    out = labels.copy()
+    for c in ids:
+        out[members[c]] = root(c)
+    return out
 
 
 def _group_segment(

@@ -20,7 +20,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from mks_sim.errors import DataError
 from mks_sim.geometry.transforms import invert, rotation_angle_deg
@@ -110,7 +109,12 @@ class VerifiedHypothesis:
 
 
 def _rodrigues(omega: FloatArray) -> FloatArray:
-    return Rotation.from_rotvec(omega).as_matrix()
+    theta = float(np.linalg.norm(omega))
+    if theta < 1e-12:
+        return np.eye(3)
+    k = omega / theta
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
 
 
 def icp_point_to_plane(
@@ -157,8 +161,9 @@ def icp_point_to_plane(
         if ok.sum() < 6:
             break
         keep = np.flatnonzero(ok)
-        if trim < 1.0:
-            cut = np.quantile(dist[keep], trim)
+        if trim < 1.0 and len(keep) > 10:
+            kth = int(trim * (len(keep) - 1))
+            cut = np.partition(dist[keep], kth)[kth]
             keep = keep[dist[keep] <= cut]
         p, q, n = p[keep], surface.points[j[keep]], surface.normals[j[keep]]
         r = np.einsum("ij,ij->i", p - q, n)  # (K,)
@@ -326,8 +331,8 @@ def verify_hypotheses(
     symmetries: ArrayLike | None = None,
     max_icp: int = 20,
     icp_iterations: int = 30,
-    full_refine: int = 4,
-    max_scene_points: int = 3000,
+    full_refine: int = 3,
+    max_scene_points: int = 2000,
     rng: np.random.Generator | None = None,
 ) -> list[VerifiedHypothesis]:
     """Refine (ICP), score and rank hypotheses; report symmetric equivalents once.
@@ -342,8 +347,8 @@ def verify_hypotheses(
         max_icp: refine at most this many initial poses (the most voted, after merging
             initial poses that are already equivalent).
         icp_iterations: ICP iteration cap of the full refinement.
-        full_refine: fully refine this many starts (best after 8 coarse ICP iterations on
-            1000 scene points); the others keep their coarse pose and score.
+        full_refine: fully refine this many starts (best after 6 coarse ICP iterations on
+            500 scene points); the others keep their coarse pose and score.
         max_scene_points: ICP and scoring use a random subset of at most this many points.
         rng: generator for that subset (default seeded 0).
 
@@ -370,11 +375,11 @@ def verify_hypotheses(
     start_ids = [i for i in range(len(ordered)) if init_labels[i] == i][:max_icp]
     # Two stages: a few coarse ICP iterations on a subset for every start, then full
     # refinement of the most promising ones only.
-    coarse_scene = scene[rng.permutation(len(scene))[:1000]]
+    coarse_scene = scene[rng.permutation(len(scene))[:500]]
     coarse: list[tuple[float, int, FloatArray]] = []
     for i in start_ids:
         icp = icp_point_to_plane(
-            surface, coarse_scene, ordered[i].matrix, max_distance=gate, max_iterations=8
+            surface, coarse_scene, ordered[i].matrix, max_distance=gate, max_iterations=6
         )
         coarse.append(
             (score_pose(surface, coarse_scene, icp.matrix, inlier_distance)[0], i, icp.matrix)
