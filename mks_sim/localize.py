@@ -1044,7 +1044,14 @@ def adapt_model(entry: Any, name: str) -> LocalizableModel:
     for attr in ("vertexes", "model_points", "points"):
         pts = getattr(entry, attr, None)
         if pts is not None:
-            return PolyhedralModel.from_vertexes(np.asarray(pts, dtype=np.float64), name)
+            try:
+                return PolyhedralModel.from_vertexes(np.asarray(pts, dtype=np.float64), name)
+            except DataError as exc:
+                raise DataError(
+                    f"model {name!r}: its {len(np.asarray(pts))} model points are not the "
+                    "vertexes of a convex polyhedron (control points?); localizing in a "
+                    f"point cloud needs the model's surface: give a mesh file instead ({exc})"
+                ) from exc
     raise DataError(
         f"model {name!r}: database entry of type {type(entry).__name__} has no mesh, vertexes "
         "or model points to localize with"

@@ -250,3 +250,16 @@ def test_library_bad_inputs(cube_model: PolyhedralModel) -> None:
     rng = np.random.default_rng(0)
     loc = localize_cloud(cube_model, rng.uniform(-1, 1, (300, 3)), table="none")
     assert not loc.found
+
+
+def test_paper_cube_from_the_model_database() -> None:
+    # Section 4.2: the detected cube is the model cube translated by 5 units along x.
+    rng = np.random.default_rng(800)
+    T = make_transform(np.eye(3), [5.0, 0.0, 0.0])
+    pts = apply(T, sample_surface(box_mesh(2.0), 2500, rng=rng)[0])
+    loc = localize_cloud("paper_cube", pts, table="none")
+    assert loc.found
+    pos, rot = pose_error(loc.best.matrix, T, cube_rotations())
+    assert pos < 0.02 and rot < 1.0
+    with pytest.raises(DataError, match="control points"):
+        load_model("paper_renault")
