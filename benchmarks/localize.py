@@ -228,7 +228,7 @@ def write_report(path: str, rows, trials: int, o3d_note: str) -> None:
         "cluster, FPFH (radius 5 voxels), feature-matching RANSAC (100k iterations, 0.999), "
         "point-to-plane ICP. Ours: `localize_cloud(model, points, viewpoint=eye)` defaults.",
         "",
-        "| object | noise mm | scan px | points | ours success | ours rot deg | ours trans % "
+        "| object | noise mm | scan px | scene points | ours success | ours rot deg | ours trans % "
         "| ours ms | O3D success | O3D rot deg | O3D trans % | O3D ms |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
