@@ -134,7 +134,7 @@ def draw_spg(path: Path, points: np.ndarray, title: str) -> None:
         n, labels = spg.components()
         A = spg.adjacency.tocoo()
         segs = np.stack([obj[A.row, :2], obj[A.col, :2]], axis=1) * 1000
-        ax.add_collection(LineCollection(segs, linewidths=0.3, colors="0.5"))
+        ax.add_collection(LineCollection(list(segs), linewidths=0.3, colors="0.5"))
         ax.scatter(obj[:, 0] * 1000, obj[:, 1] * 1000, c=labels, s=1.5, cmap="tab20")
         title += f" ({len(obj)} points, {n} components)"
     ax.set_title(title, fontsize=9)
