@@ -192,3 +192,13 @@ def test_updates_equal_a_fresh_spg(m, threshold, metric, ops, seed):
             np.testing.assert_array_equal(g.points, np.delete(before, gone, axis=0))
             assert np.all(mapping[gone] == -1)
         assert_matches(g, brute_spg(g.points, m, threshold, METRICS[metric]))
+
+
+def test_chunked_queries_give_the_same_graph(monkeypatch):
+    import mks_sim.lowlevel.spg as spg_module
+
+    rng = np.random.default_rng(5)
+    pts = rng.integers(0, 4, size=(120, 2)).astype(float)  # many ties across chunk borders
+    monkeypatch.setattr(spg_module, "_CHUNK_ENTRIES", 37)
+    g = SpatialProximityGraph(pts, m=5, threshold=2.0)
+    assert_matches(g, brute_spg(pts, 5, 2.0, Metric.euclidean()))

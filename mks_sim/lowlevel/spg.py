@@ -42,6 +42,9 @@ __all__ = ["SpatialProximityGraph"]
 
 Neighbours = int | Literal["all"]
 
+# Entries (queries x (m + 2)) per chunk of tree queries.
+_CHUNK_ENTRIES = 1 << 20
+
 
 def _check_params(m: Neighbours, threshold: float | None) -> tuple[Neighbours, float | None]:
     if m != "all" and (isinstance(m, bool) or not isinstance(m, int | np.integer) or m < 1):
@@ -146,96 +149,127 @@ class SpatialProximityGraph:
         if nq == 0:
             return np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros(0)
         q = self._points_of(ids)
-        tree = self._tree
-        rows: dict[int, tuple[NDArray[np.intp], NDArray[np.float64]]] = {}
+        # parts: (positions in 0..nq, lengths, neighbour ids, distances), rows nearest first
+        parts: list[
+            tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]]
+        ]
+        parts = []
         if self.m == "all":
             assert self.threshold is not None
-            ball_rows = np.arange(nq)
+            ball = np.arange(nq)
             radii = np.full(nq, self.threshold * (1 + 1e-12) + 1e-30)
-            lens = np.zeros(nq, np.intp)
-            taken_nbr = np.zeros((nq, 0), np.intp)
-            taken_d = np.zeros((nq, 0))
-            taken_ok = np.zeros((nq, 0), bool)
         else:
-            m = int(self.m)
-            # Slightly generous bound; the exact metric filters below.
-            dub = math.inf if self.threshold is None else self.threshold * (1 + 1e-12) + 1e-30
-            perm = None
+            ball_list, radii_list = [], []
+            tree = self._tree
             if isinstance(tree, KDTree) and nq == tree.n and nq > 1:
                 # Query in the tree's leaf order: neighbouring queries walk the same nodes
                 # (cache-friendly; 1.3-2x faster on 1e5-1e6 unordered points).
-                perm = np.asarray(tree.tree.indices, dtype=np.intp)
-                q_in = q[perm]
+                order = np.asarray(tree.tree.indices, dtype=np.intp)
             else:
-                q_in = q
-            d, i = tree.query(q_in, k=m + 2, distance_upper_bound=dub, workers=self.workers)
-            d = np.asarray(d).reshape(nq, m + 2)
-            i = np.asarray(i).reshape(nq, m + 2)
-            if perm is not None:
-                d_, i_ = d, i
-                d = np.empty_like(d_)
-                i = np.empty_like(i_)
-                d[perm] = d_
-                i[perm] = i_
-            valid = np.isfinite(d) & (i != ids[:, None])
-            rank = np.cumsum(valid, axis=1) - 1
-            take = valid & (rank < m)
-            d_last = np.where(valid & (rank == m - 1), d, -np.inf).max(axis=1)
-            d_next = np.where(valid & (rank == m), d, np.inf).min(axis=1)
-            # A tie across the m-th place: the tree chose among equals; redo by index.
-            ball_rows = np.flatnonzero(d_next == d_last)
-            radii = d_last[ball_rows] * (1 + 1e-12) + 1e-30
-            taken_nbr = i
-            taken_d = d
-            taken_ok = take
-            lens = take.sum(axis=1)
-        for j, r in zip(ball_rows.tolist(), radii.tolist(), strict=True):
-            idx = np.asarray(tree.query_ball_point(q[j], r, workers=1), dtype=np.intp)
-            idx = idx[idx != ids[j]]
-            dd = self.metric.distance(q[j], self._points_of(idx)) if idx.size else np.zeros(0)
-            if self.threshold is not None:
-                keep = dd <= self.threshold
-                idx, dd = idx[keep], dd[keep]
-            order = np.lexsort((idx, dd))
-            if self.m != "all":
-                order = order[: int(self.m)]
-            rows[j] = (idx[order], dd[order])
-        # Flatten the k-nearest part (row-major, so rows stay in order and each row nearest
-        # first). The tree's distances are the metric's to the last bit (cKDTree on scaled
-        # coordinates does the same arithmetic as Metric.distance; sum_of is refined exactly).
-        row_of = np.repeat(np.arange(nq), lens)
-        nbr = taken_nbr[taken_ok]
-        dist = taken_d[taken_ok]
+                order = np.arange(nq)
+            # Chunks bound the (chunk, m + 2) temporaries: peak memory ~ the output's.
+            step = max(1, _CHUNK_ENTRIES // (int(self.m) + 2))
+            for s in range(0, nq, step):
+                sel = order[s : s + step]
+                part, b_rows, b_radii = self._knn_chunk(q[sel], ids[sel])
+                parts.append((sel, *part))
+                ball_list.append(sel[b_rows])
+                radii_list.append(b_radii)
+            ball = np.concatenate(ball_list)
+            radii = np.concatenate(radii_list)
+        rows = {
+            j: self._ball_row(q[j], ids[j], r)
+            for j, r in zip(ball.tolist(), radii.tolist(), strict=True)
+        }
+        if rows:
+            b = np.fromiter(rows, np.intp, len(rows))
+            parts.append(
+                (
+                    b,
+                    np.array([len(rows[j][0]) for j in rows], np.intp),
+                    np.concatenate([rows[j][0] for j in rows]).astype(np.intp),
+                    np.concatenate([rows[j][1] for j in rows]).astype(float),
+                )
+            )
+        # Assemble the parts in row order by scattering each into its rows' slots.
+        lens = np.zeros(nq, np.intp)
+        for sel, ln, _, _ in parts:
+            lens[sel] = ln
+        indptr = np.concatenate([[0], np.cumsum(lens)])
+        nbr_out = np.empty(int(indptr[-1]), np.intp)
+        dist_out = np.empty(int(indptr[-1]))
+        for sel, ln, nb, dd in parts:
+            if nb.size:
+                offs = np.arange(len(nb)) - np.repeat(np.cumsum(ln) - ln, ln)
+                dest = np.repeat(indptr[sel], ln) + offs
+                nbr_out[dest] = nb
+                dist_out[dest] = dd
+        return lens, nbr_out, dist_out
+
+    def _knn_chunk(
+        self, q: NDArray[np.float64], self_ids: NDArray[np.intp]
+    ) -> tuple[
+        tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]],
+        NDArray[np.intp],
+        NDArray[np.float64],
+    ]:
+        """m nearest of a chunk of queries: ((lengths, ids, distances), tied rows, their radii).
+
+        Tied rows (a tie across the m-th place, where the tree chose among equals) come back
+        empty and are redone by :meth:`_ball_row`.
+        """
+        m = int(self.m)
+        nq = len(q)
+        # Slightly generous bound; the exact threshold filters below.
+        dub = math.inf if self.threshold is None else self.threshold * (1 + 1e-12) + 1e-30
+        d, i = self._tree.query(q, k=m + 2, distance_upper_bound=dub, workers=self.workers)
+        d = np.asarray(d).reshape(nq, m + 2)
+        i = np.asarray(i).reshape(nq, m + 2)
+        valid = np.isfinite(d) & (i != self_ids[:, None])
+        rank = np.cumsum(valid, axis=1, dtype=np.int32) - 1
+        take = valid & (rank < m)
+        d_last = np.where(valid & (rank == m - 1), d, -np.inf).max(axis=1)
+        d_next = np.where(valid & (rank == m), d, np.inf).min(axis=1)
+        tied = np.flatnonzero(d_next == d_last)
+        if tied.size:
+            take[tied] = False
+        if self.threshold is not None:
+            take &= d <= self.threshold
+        lens = take.sum(axis=1).astype(np.intp)
+        nbr = i[take].astype(np.intp)
+        # The tree's distances are the metric's to the last bit for p = 1, 2, inf (cKDTree on
+        # scaled coordinates does Metric.distance's arithmetic; sum_of is refined exactly).
+        dist = d[take]
         if self.metric.is_minkowski and self.metric.p not in (1.0, 2.0, math.inf) and nbr.size:
             # cKDTree's pow() path differs from numpy's in the last bit: one formula for all.
             dist = self.metric.distance(np.repeat(q, lens, axis=0), self._points_of(nbr))
-        keep = np.ones(len(nbr), bool)
+            row_of = np.repeat(np.arange(nq), lens)
+            same = row_of[1:] == row_of[:-1]
+            bad = same & ((dist[1:] < dist[:-1]) | ((dist[1:] == dist[:-1]) & (nbr[1:] < nbr[:-1])))
+            if bad.any():
+                sub = np.flatnonzero(np.isin(row_of, np.unique(row_of[1:][bad])))
+                o = sub[np.lexsort((nbr[sub], dist[sub], row_of[sub]))]
+                nbr[sub], dist[sub] = nbr[o], dist[o]
+            if self.threshold is not None and np.any(dist > self.threshold):
+                keep = dist <= self.threshold
+                lens = np.bincount(row_of[keep], minlength=nq).astype(np.intp)
+                nbr, dist = nbr[keep], dist[keep]
+        return (lens, nbr, dist), tied, d_last[tied] * (1 + 1e-12) + 1e-30
+
+    def _ball_row(
+        self, x: NDArray[np.float64], self_id: int, r: float
+    ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+        """Exact row of one point from a ball query: (ids, distances), nearest first, ties by id."""
+        idx = np.asarray(self._tree.query_ball_point(x, r, workers=1), dtype=np.intp)
+        idx = idx[idx != self_id]
+        dd = self.metric.distance(x, self._points_of(idx)) if idx.size else np.zeros(0)
         if self.threshold is not None:
-            keep &= dist <= self.threshold
-        if rows:
-            keep &= ~np.isin(row_of, np.fromiter(rows, np.intp, len(rows)))
-        if not keep.all():
-            row_of, nbr, dist = row_of[keep], nbr[keep], dist[keep]
-        same_row = row_of[1:] == row_of[:-1]
-        out_of_order = same_row & (
-            (dist[1:] < dist[:-1]) | ((dist[1:] == dist[:-1]) & (nbr[1:] < nbr[:-1]))
-        )
-        if out_of_order.any():
-            bad = np.isin(row_of, np.unique(row_of[1:][out_of_order]))
-            sub = np.flatnonzero(bad)
-            order = sub[np.lexsort((nbr[sub], dist[sub], row_of[sub]))]
-            nbr[sub], dist[sub] = nbr[order], dist[order]
-        if rows:
-            extra_rows = np.fromiter(rows, np.intp, len(rows))
-            row_of = np.concatenate(
-                [row_of, np.repeat(extra_rows, [len(rows[r][0]) for r in rows])]
-            )
-            nbr = np.concatenate([nbr, *[rows[r][0] for r in rows]])
-            dist = np.concatenate([dist, *[rows[r][1] for r in rows]])
-            order = np.argsort(row_of, kind="stable")  # keeps each row's own order
-            row_of, nbr, dist = row_of[order], nbr[order], dist[order]
-        lens = np.bincount(row_of, minlength=nq).astype(np.intp)
-        return lens, nbr.astype(np.intp), dist.astype(float)
+            keep = dd <= self.threshold
+            idx, dd = idx[keep], dd[keep]
+        order = np.lexsort((idx, dd))
+        if self.m != "all":
+            order = order[: int(self.m)]
+        return idx[order], dd[order]
 
     # ------------------------------------------------------------------ views
     @property
