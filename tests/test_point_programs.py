@@ -398,3 +398,40 @@ def test_part_scene_control_point_candidates() -> None:
         assert 4 <= len(candidates) <= 16
         d = np.linalg.norm(control[:, None] - candidates[None], axis=2).min(axis=1)
         assert np.all(d < 0.007), (seed, d)
+
+
+# --- the Hough models over the detectors' output -----------------------------------------------
+
+
+def test_cube_5cm_model_on_vertex_detector_output(cube_sphere_cloud) -> None:
+    from mks_sim.geometry.transforms import cube_rotations, pose_error
+    from mks_sim.models.database import ModelDatabase
+
+    pts, _, _ = cube_sphere_cloud
+    verts = get_program("vertex_detector")(_stream_input(pts), {**PARAMS, "min_points": 40})
+    hyps = ModelDatabase.from_dir().get("cube_5cm").detect(verts)
+    truth = np.eye(4)
+    truth[:3, :3] = _rot_z(25)
+    truth[:3, 3] = [*CUBE_XY, TABLE_Z + 0.025]
+    best = max(hyps, key=lambda h: h.votes)
+    pos, rot = pose_error(best.matrix, truth, cube_rotations())
+    assert pos < 0.002 and rot < 2.0
+
+
+def test_part_model_on_control_point_candidates() -> None:
+    from mks_sim.geometry.transforms import pose_error
+    from mks_sim.models.database import ModelDatabase
+
+    R, xy = _rot_z(-40), (0.02, 0.01)
+    part = _on_table(industrial_part_mesh(), R, xy, 0.0015, 3)
+    pts = np.concatenate([part[part[:, 2] > TABLE_Z + 1e-6], _table()])
+    candidates = get_program("control_point_detector")(
+        _stream_input(pts), {**PARAMS, "table_margin_m": 0.002}
+    )
+    hyps = ModelDatabase.from_dir().get("part").detect(candidates)
+    truth = np.eye(4)
+    truth[:3, :3] = R
+    truth[:3, 3] = [*xy, TABLE_Z]
+    # Outline corners lie up to a spacing inside the true edges: a coarse pose for ICP to polish.
+    errors = [pose_error(h.matrix, truth) for h in hyps]
+    assert min(e[0] for e in errors) < 0.002 and min(e[1] for e in errors) < 4.0
