@@ -352,3 +352,33 @@ def test_make_devices_on_partial_world(world) -> None:
             devs.set_fault("x", failed=True)
     with pytest.raises(SpecError, match="unknown device 'bogus'"):
         make_devices(model, data, np.random.default_rng(0), {"bogus": DeviceFaults()})
+
+
+@pytest.mark.slow
+def test_workstation_devices_on_scene2() -> None:
+    from mks_sim.devices import DEVICE_NAMES, stereo_frame
+    from mks_sim.sensing.programs.points import depth_to_points
+    from mks_sim.sim import names
+    from mks_sim.sim.world import build_world
+
+    world = build_world("scene2")
+    with make_devices(world.model, world.data, np.random.default_rng(0)) as devs:
+        assert set(devs) == set(DEVICE_NAMES)
+        sf = stereo_frame(devs["stereo_left"].read(), devs["stereo_right"].read())
+        assert sf.baseline == pytest.approx(names.STEREO_BASELINE_M, abs=1e-6)
+        np.testing.assert_allclose(sf.right_to_left[:3, :3], np.eye(3), atol=1e-6)  # rectified
+        # Depth pixels far from the objects see the table top.
+        pts = depth_to_points(devs["depth_camera"].read())
+        region = (np.abs(pts[:, 0]) < 0.3) & (pts[:, 1] < -0.15) & (pts[:, 1] > -0.3)
+        assert region.sum() > 500
+        assert np.median(np.abs(pts[region, 2] - names.TABLE_TOP_Z)) < 0.002
+        # Range finder: both views hit the object region, the robot's returns are self-filtered.
+        scans = devs["range_finder"].read()
+        assert [s.view for s in scans] == [0, 1]
+        for s in scans:
+            assert s.hit.mean() > 0.9
+        # Touch pads: 9 taxels at their sites, no contact with the hand open.
+        touch = devs["touch_finger_2"].read()
+        sites = [world.data.site(names.touch_site(2, i)).xpos for i in range(names.TAXELS_PER_PAD)]
+        np.testing.assert_allclose(touch.positions_world, sites)
+        assert touch.pressure.shape == (9,) and np.all(touch.pressure < 500.0)
