@@ -382,3 +382,12 @@ def test_workstation_devices_on_scene2() -> None:
         sites = [world.data.site(names.touch_site(2, i)).xpos for i in range(names.TAXELS_PER_PAD)]
         np.testing.assert_allclose(touch.positions_world, sites)
         assert touch.pressure.shape == (9,) and np.all(touch.pressure < 500.0)
+
+
+def test_camera_read_after_close_is_an_error(world) -> None:
+    model, data = world
+    cam = Camera(model, data, "cam", np.random.default_rng(0), width=32, height=24)
+    cam.close()  # never read: no renderer was made
+    assert cam.closed
+    with pytest.raises(SpecError, match="read after close"):
+        cam.read()

@@ -25,7 +25,7 @@ from __future__ import annotations
 import atexit
 import logging
 import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -102,7 +102,6 @@ class CameraNoise:
 class _RenderState:
     renderer: mujoco.Renderer | None = None
     depth_renderer: mujoco.Renderer | None = None
-    extra: dict[str, object] = field(default_factory=dict)
 
 
 class Camera(SimDevice):
@@ -118,7 +117,9 @@ class Camera(SimDevice):
         noise: nominal noise.
         faults: initial fault state.
 
-    The renderer is created once here and released by :meth:`close` (also at exit).
+    The renderers are created once, at the first read (building a device set whose cameras
+    are never read costs nothing: ~0.25 s per renderer in software EGL), and released by
+    :meth:`close` (also at exit).
     """
 
     def __init__(
@@ -153,13 +154,21 @@ class Camera(SimDevice):
         self.width, self.height, self.has_depth = int(width), int(height), bool(depth)
         self.noise = noise or CameraNoise()
         self.K = intrinsics_from_fovy(float(model.cam_fovy[cam_id]), self.width, self.height)
-        self._state = _RenderState(renderer=self._make_renderer())
-        if depth:
-            self._state.depth_renderer = self._make_renderer()
-            self._state.depth_renderer.enable_depth_rendering()
+        self._state = _RenderState()
+        self._closed = False
         # Depth at the far clip plane means "nothing there".
         self._far_m = float(model.vis.map.zfar * model.stat.extent)
-        _OPEN_RENDERERS.add(self)
+
+    def _renderers(self) -> tuple[mujoco.Renderer, mujoco.Renderer | None]:
+        if self._closed:
+            raise SpecError(f"device {self.name!r}: read after close()")
+        if self._state.renderer is None:
+            self._state.renderer = self._make_renderer()
+            if self.has_depth:
+                self._state.depth_renderer = self._make_renderer()
+                self._state.depth_renderer.enable_depth_rendering()
+            _OPEN_RENDERERS.add(self)
+        return self._state.renderer, self._state.depth_renderer
 
     def _make_renderer(self) -> mujoco.Renderer:
         r = mujoco.Renderer(self.model, self.height, self.width)
@@ -173,10 +182,11 @@ class Camera(SimDevice):
     @property
     def closed(self) -> bool:
         """True once :meth:`close` has released the renderers."""
-        return self._state.renderer is None
+        return self._closed
 
     def close(self) -> None:
         """Release the renderers (idempotent)."""
+        self._closed = True
         for attr in ("renderer", "depth_renderer"):
             r = getattr(self._state, attr)
             if r is not None:
@@ -190,14 +200,13 @@ class Camera(SimDevice):
 
     def render_clean(self) -> tuple[np.ndarray, np.ndarray | None]:
         """Noise-free (rgb (H, W, 3) uint8, depth (H, W) metres with NaN background | None)."""
-        if self._state.renderer is None:
-            raise SpecError(f"device {self.name!r}: read after close()")
-        self._state.renderer.update_scene(self.data, camera=self.camera_id)
-        rgb = self._state.renderer.render().copy()
+        renderer, depth_renderer = self._renderers()
+        renderer.update_scene(self.data, camera=self.camera_id)
+        rgb = renderer.render().copy()
         depth = None
-        if self._state.depth_renderer is not None:
-            self._state.depth_renderer.update_scene(self.data, camera=self.camera_id)
-            depth = self._state.depth_renderer.render().astype(np.float64)
+        if depth_renderer is not None:
+            depth_renderer.update_scene(self.data, camera=self.camera_id)
+            depth = depth_renderer.render().astype(np.float64)
             depth[depth >= 0.999 * self._far_m] = np.nan
         return rgb, depth
 
