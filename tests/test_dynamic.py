@@ -105,3 +105,14 @@ def test_missing_neighbour_is_next_id_and_errors():
         dyn.insert(np.zeros((1, 3)))
     with pytest.raises(DataError, match="give data or k"):
         DynamicKDTree()
+
+
+def test_many_marks_in_one_block_still_exact():
+    # 64 points on a line in one block; the 31 nearest to the query are dead (< half): the
+    # block query must widen its k until it sees live points.
+    pts = np.arange(64.0)[:, None]
+    dyn = DynamicKDTree(pts, leafsize=4)
+    dyn.delete(np.arange(31))
+    assert len(dyn._blocks) == 1 and next(iter(dyn._blocks.values())).dead == 31
+    d, i = dyn.query(np.array([[0.0]]), k=3)
+    assert i.tolist() == [[31, 32, 33]] and d.tolist() == [[31.0, 32.0, 33.0]]

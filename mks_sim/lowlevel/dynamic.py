@@ -195,17 +195,9 @@ class DynamicKDTree:
         q = validate_points(arr.reshape(1, -1) if single else arr, "DynamicKDTree.query", self.m)
         ds, idss = [np.full((len(q), k), np.inf)], [np.full((len(q), k), self.next_id, np.intp)]
         for block in self._blocks.values():
-            kb = min(k + block.dead, block.size)
-            d, i = block.tree.query(
-                q, k=kb, eps=eps, distance_upper_bound=distance_upper_bound, workers=workers
-            )
-            d = np.asarray(d).reshape(len(q), kb)
-            i = np.asarray(i).reshape(len(q), kb)
-            found = i < block.size
-            ids = np.where(found, block.ids[np.minimum(i, block.size - 1)], self.next_id)
-            ok = found & block.alive[np.minimum(i, block.size - 1)]
-            ds.append(np.where(ok, d, np.inf))
-            idss.append(np.where(ok, ids, self.next_id))
+            d_b, i_b = self._query_block(block, q, k, eps, distance_upper_bound, workers)
+            ds.append(d_b)
+            idss.append(i_b)
         d_all = np.concatenate(ds, axis=1)
         i_all = np.concatenate(idss, axis=1)
         order = np.lexsort((i_all, d_all), axis=-1)[:, :k]
@@ -214,6 +206,42 @@ class DynamicKDTree:
         if k == 1:
             d_out, i_out = d_out[:, 0], i_out[:, 0]
         return (d_out[0], i_out[0]) if single else (d_out, i_out)
+
+    def _query_block(
+        self, block: _Block, q: NDArray[np.float64], k: int, eps: float, dub: float, workers: int
+    ) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+        """The k nearest *live* points of one block: (Q, k) distances and ids.
+
+        Asks for k + min(dead, k) neighbours first and doubles for the rows whose answer was
+        saturated by dead points, so a few marks never cost a query of k + dead.
+        """
+        nq = len(q)
+        d_out = np.full((nq, k), np.inf)
+        i_out = np.full((nq, k), self.next_id, np.intp)
+        rows = np.arange(nq)
+        kb = min(k + min(block.dead, k), block.size)
+        while rows.size:
+            d, i = block.tree.query(
+                q[rows], k=kb, eps=eps, distance_upper_bound=dub, workers=workers
+            )
+            d = np.asarray(d).reshape(len(rows), kb)
+            i = np.asarray(i).reshape(len(rows), kb)
+            found = i < block.size
+            safe = np.minimum(i, block.size - 1)
+            ok = found & block.alive[safe]
+            # stable: live entries first, in the tree's (distance, index) order
+            order = np.argsort(~ok, axis=1, kind="stable")[:, :k]
+            dk = np.take_along_axis(np.where(ok, d, np.inf), order, 1)
+            ik = np.take_along_axis(np.where(ok, block.ids[safe], self.next_id), order, 1)
+            w = min(k, kb)
+            d_out[rows, :w] = dk[:, :w]
+            i_out[rows, :w] = ik[:, :w]
+            more = (ok.sum(axis=1) < k) & found[:, -1]  # saturated: dead points may hide live ones
+            if kb >= block.size or not more.any():
+                break
+            rows = rows[more]
+            kb = min(2 * kb, block.size)
+        return d_out, i_out
 
     def query_ball_point(
         self,

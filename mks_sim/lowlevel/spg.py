@@ -464,29 +464,40 @@ class SpatialProximityGraph:
         """Rebuild storage for rows ``ids_new``: recompute ``rec_ids``, copy the others."""
         rec_ids = np.sort(rec_ids)
         r_len, r_nbr, r_dist = self._compute_rows(rec_ids)
-        is_rec = np.isin(ids_new, rec_ids)
-        copy_ids = ids_new[~is_rec]
-        old_rows = np.searchsorted(self._ids, copy_ids)
-        starts = self._indptr[old_rows]
-        lens = self._indptr[old_rows + 1] - starts
-        total = int(lens.sum())
-        offs = np.arange(total) - np.repeat(np.cumsum(lens) - lens, lens)
-        ent = np.repeat(starts, lens) + offs
-        c_nbr, c_dist = self._nbr[ent], self._dist[ent]
-        c_row = np.repeat(np.flatnonzero(~is_rec), lens)
+        n_new = len(ids_new)
+        # Rows are in id order before and after, so copied rows keep their relative order:
+        # everything is a scatter into the new CSR, no sorting (O(N m) per call).
+        rec_pos = np.searchsorted(ids_new, rec_ids)
+        is_rec = np.zeros(n_new, bool)
+        is_rec[rec_pos] = True
+        copy_pos = np.flatnonzero(~is_rec)
+        old_rows = np.searchsorted(self._ids, ids_new[copy_pos])
+        old_lens = np.diff(self._indptr)
+        entry_row = np.repeat(np.arange(len(old_lens)), old_lens)
+        row_keep = np.zeros(len(old_lens), bool)
+        row_keep[old_rows] = True
+        entry_keep = row_keep[entry_row]
         if drop is not None and drop.size:
-            keep = ~np.isin(c_nbr, drop)
-            c_nbr, c_dist, c_row = c_nbr[keep], c_dist[keep], c_row[keep]
-        rec_rows = np.flatnonzero(is_rec)
-        all_row = np.concatenate([c_row, np.repeat(rec_rows, r_len)])
-        all_nbr = np.concatenate([c_nbr, r_nbr])
-        all_dist = np.concatenate([c_dist, r_dist])
-        order = np.argsort(all_row, kind="stable")
+            entry_keep &= ~np.isin(self._nbr, drop)
+        kept_rows = entry_row[entry_keep]
+        c_nbr, c_dist = self._nbr[entry_keep], self._dist[entry_keep]
+        cnt = np.bincount(kept_rows, minlength=len(old_lens))[old_rows]
+        lens = np.zeros(n_new, np.intp)
+        lens[copy_pos] = cnt
+        lens[rec_pos] = r_len
+        indptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.intp)
+        nbr = np.empty(int(indptr[-1]), np.intp)
+        dist = np.empty(int(indptr[-1]))
+        for pos, ln, nb, dd in ((copy_pos, cnt, c_nbr, c_dist), (rec_pos, r_len, r_nbr, r_dist)):
+            if nb.size:
+                offs = np.arange(len(nb)) - np.repeat(np.cumsum(ln) - ln, ln)
+                dest = np.repeat(indptr[pos], ln) + offs
+                nbr[dest] = nb
+                dist[dest] = dd
         self._ids = ids_new
-        self._nbr = all_nbr[order].astype(np.intp)
-        self._dist = all_dist[order]
-        counts = np.bincount(all_row, minlength=len(ids_new))
-        self._indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.intp)
+        self._nbr = nbr
+        self._dist = dist
+        self._indptr = indptr
         self._adj = None
 
     def __repr__(self) -> str:
