@@ -202,3 +202,19 @@ def test_chunked_queries_give_the_same_graph(monkeypatch):
     monkeypatch.setattr(spg_module, "_CHUNK_ENTRIES", 37)
     g = SpatialProximityGraph(pts, m=5, threshold=2.0)
     assert_matches(g, brute_spg(pts, 5, 2.0, Metric.euclidean()))
+
+
+@pytest.mark.parametrize("max_runs", [0, 4096])
+def test_both_update_splices(monkeypatch, max_runs):
+    import mks_sim.lowlevel.spg as spg_module
+
+    monkeypatch.setattr(spg_module, "_MAX_RUNS", max_runs)
+    rng = np.random.default_rng(11)
+    pts = rng.integers(-4, 5, size=(40, 2)).astype(float)
+    g = SpatialProximityGraph(pts, m=3, threshold=2.5)
+    for step in range(6):
+        if step % 2 == 0:
+            g.insert(rng.integers(-4, 5, size=(3, 2)).astype(float))
+        else:
+            g.delete(rng.choice(g.n, 4, replace=False))
+        assert_matches(g, brute_spg(g.points, 3, 2.5, Metric.euclidean()))

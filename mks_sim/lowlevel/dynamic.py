@@ -77,7 +77,8 @@ class DynamicKDTree:
             arr = validate_points(data, "DynamicKDTree data")
             self.m = arr.shape[1]
         self.metric.check_dim(self.m, "DynamicKDTree")
-        self._points = np.empty((0, self.m))  # row = id
+        # Indexed by id, with spare capacity (slots >= next_id are not alive).
+        self._points = np.empty((0, self.m))
         self._alive = np.empty(0, dtype=bool)
         self._block_of = np.empty(0, dtype=np.intp)  # id -> block level
         if data is not None and len(arr):
@@ -150,9 +151,14 @@ class DynamicKDTree:
         b = len(pts)
         ids = np.arange(self.next_id, self.next_id + b, dtype=np.intp)
         self.next_id += b
-        self._points = np.concatenate([self._points, pts])
-        self._alive = np.concatenate([self._alive, np.ones(b, dtype=bool)])
-        self._block_of = np.concatenate([self._block_of, np.full(b, -1, dtype=np.intp)])
+        cap = len(self._alive)
+        if self.next_id > cap:  # grow geometrically: amortised O(1) per inserted point
+            grow = max(self.next_id, 2 * cap) - cap
+            self._points = np.concatenate([self._points, np.zeros((grow, self.m))])
+            self._alive = np.concatenate([self._alive, np.zeros(grow, dtype=bool)])
+            self._block_of = np.concatenate([self._block_of, np.full(grow, -1, dtype=np.intp)])
+        self._points[ids] = pts
+        self._alive[ids] = True
         if b:
             self._place(ids)
         return ids

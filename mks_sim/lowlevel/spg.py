@@ -44,6 +44,8 @@ Neighbours = int | Literal["all"]
 
 # Entries (queries x (m + 2)) per chunk of tree queries.
 _CHUNK_ENTRIES = 1 << 20
+# Updates touching more runs of rows than this use the general (vectorised) splice.
+_MAX_RUNS = 4096
 
 
 def _check_params(m: Neighbours, threshold: float | None) -> tuple[Neighbours, float | None]:
@@ -222,7 +224,9 @@ class SpatialProximityGraph:
         nq = len(q)
         # Slightly generous bound; the exact threshold filters below.
         dub = math.inf if self.threshold is None else self.threshold * (1 + 1e-12) + 1e-30
-        d, i = self._tree.query(q, k=m + 2, distance_upper_bound=dub, workers=self.workers)
+        # Threads cost more than they save on a handful of rows (updates).
+        workers = self.workers if nq >= 2048 else 1
+        d, i = self._tree.query(q, k=m + 2, distance_upper_bound=dub, workers=workers)
         d = np.asarray(d).reshape(nq, m + 2)
         i = np.asarray(i).reshape(nq, m + 2)
         valid = np.isfinite(d) & (i != self_ids[:, None])
@@ -450,7 +454,9 @@ class SpatialProximityGraph:
         rows = np.repeat(self._ids, np.diff(self._indptr))
         hit = np.unique(rows[np.isin(self._nbr, gone)])
         rec_ids = hit[np.isin(hit, ids_new)] if self.m != "all" else np.zeros(0, np.intp)
-        self._recompute(ids_new, rec_ids, drop=gone)
+        # Finite m: every row that pointed at a deleted point is recomputed, so only m="all"
+        # rows need their edges to deleted points dropped.
+        self._recompute(ids_new, rec_ids, drop=gone if self.m == "all" else None)
         mapping = np.full(len(keep), -1, np.intp)
         mapping[keep] = np.arange(int(keep.sum()))
         return mapping
@@ -464,6 +470,10 @@ class SpatialProximityGraph:
         """Rebuild storage for rows ``ids_new``: recompute ``rec_ids``, copy the others."""
         rec_ids = np.sort(rec_ids)
         r_len, r_nbr, r_dist = self._compute_rows(rec_ids)
+        if (drop is None or drop.size == 0) and self._splice_runs(
+            ids_new, rec_ids, r_len, r_nbr, r_dist
+        ):
+            return
         n_new = len(ids_new)
         # Rows are in id order before and after, so copied rows keep their relative order:
         # everything is a scatter into the new CSR, no sorting (O(N m) per call).
@@ -499,6 +509,54 @@ class SpatialProximityGraph:
         self._dist = dist
         self._indptr = indptr
         self._adj = None
+
+    def _splice_runs(
+        self,
+        ids_new: NDArray[np.intp],
+        rec_ids: NDArray[np.intp],
+        r_len: NDArray[np.intp],
+        r_nbr: NDArray[np.intp],
+        r_dist: NDArray[np.float64],
+    ) -> bool:
+        """Fast splice for few changed rows: copy unchanged runs of rows as contiguous slices.
+
+        Returns False (nothing done) when the update touches too many places to be worth it.
+        """
+        n_new = len(ids_new)
+        rec_pos = np.searchsorted(ids_new, rec_ids)
+        is_rec = np.zeros(n_new, bool)
+        is_rec[rec_pos] = True
+        old_row = np.searchsorted(self._ids, ids_new)
+        old_row[is_rec] = -2
+        start = np.ones(n_new, bool)
+        start[1:] = is_rec[1:] | is_rec[:-1] | (old_row[1:] != old_row[:-1] + 1)
+        starts = np.flatnonzero(start)
+        if len(starts) > _MAX_RUNS:
+            return False
+        ends = np.append(starts[1:], n_new) if len(starts) else starts
+        rec_ptr = np.concatenate([[0], np.cumsum(r_len)])
+        rec_index = {int(p): j for j, p in enumerate(rec_pos.tolist())}
+        nbr_parts, dist_parts, len_parts = [], [], []
+        for a, b in zip(starts.tolist(), ends.tolist(), strict=True):
+            if is_rec[a]:
+                j = rec_index[a]
+                sl = slice(int(rec_ptr[j]), int(rec_ptr[j + 1]))
+                nbr_parts.append(r_nbr[sl])
+                dist_parts.append(r_dist[sl])
+                len_parts.append(r_len[j : j + 1])
+            else:
+                oa, ob = int(old_row[a]), int(old_row[b - 1]) + 1
+                e0, e1 = int(self._indptr[oa]), int(self._indptr[ob])
+                nbr_parts.append(self._nbr[e0:e1])
+                dist_parts.append(self._dist[e0:e1])
+                len_parts.append(np.diff(self._indptr[oa : ob + 1]))
+        lens = np.concatenate(len_parts) if len_parts else np.zeros(0, np.intp)
+        self._ids = ids_new
+        self._nbr = np.concatenate(nbr_parts).astype(np.intp) if nbr_parts else np.zeros(0, np.intp)
+        self._dist = np.concatenate(dist_parts) if dist_parts else np.zeros(0)
+        self._indptr = np.concatenate([[0], np.cumsum(lens)]).astype(np.intp)
+        self._adj = None
+        return True
 
     def __repr__(self) -> str:
         return (
