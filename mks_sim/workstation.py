@@ -280,12 +280,10 @@ localize = localize_object
 
 
 def _noise_scale(points: FloatArray, table: Plane | None, spacing: float) -> float:
-    """Inlier distance for consistency checks: ~3 sigma of the table points, >= 3 mm."""
-    if table is not None:
-        d = np.abs(table.distance(points))
-        near = d[d < 0.01]
-        if len(near) > 50:
-            return float(max(0.003, 3.0 * np.sqrt(np.mean(near**2)), 1.5 * spacing))
+    """Inlier distance for consistency checks: 3 sigma of the table's RANSAC inliers, >= 3 mm."""
+    del points
+    if table is not None and table.rmse > 0:
+        return float(max(0.003, 3.0 * table.rmse))
     return float(max(0.003, 1.5 * spacing))
 
 
@@ -397,6 +395,24 @@ def _localize_polyhedral(
     extra["inlier_distance_m"] = d
     extra["checks"] = [checks[i] for i in order[:5]]
     good = [loc.hypotheses[i] for i in order if checks[i]["ok"]]
+    if not good and table is not None:
+        # Fallback: the object rests on the table. Hypotheses from every support face of the
+        # model put on the sensed table plane, yaw from the footprint's principal axes,
+        # refined by ICP and checked like the others.
+        t = time.perf_counter()
+        support = _support_hypotheses(model, objects, table, d, rng)
+        checks2 = [
+            _consistency(h.matrix, surface_pts, surface_nrm, points, table, d) for h in support
+        ]
+        order2 = sorted(
+            range(len(support)),
+            key=lambda i: (not checks2[i]["ok"], -checks2[i]["explained"], -support[i].score),
+        )
+        good = [support[i] for i in order2 if checks2[i]["ok"]]
+        extra["support_fallback"] = {"candidates": len(support), "ok": len(good)}
+        if not extra["checks"] or (order2 and checks2[order2[0]]["ok"]):
+            extra["checks"] = [checks2[i] for i in order2[:5]]
+        timing["support_fallback"] = time.perf_counter() - t
     if good and detected is not None and len(detected):
         T = np.asarray(good[0].matrix)
         model_feats = getattr(model, "vertexes", None)
@@ -405,6 +421,105 @@ def _localize_polyhedral(
             dist = cKDTree(detected).query(mv)[0]
             extra["feature_support"] = int((dist < 4 * d).sum())
     return good, extra
+
+
+def _object_segments(objects: FloatArray, size: float, min_points: int = 60) -> list[FloatArray]:
+    """SPG components (edges <= 12 mm) of the points above the table no larger than the model."""
+    from mks_sim.lowlevel.spg import SpatialProximityGraph
+
+    if len(objects) < min_points:
+        return []
+    spg = SpatialProximityGraph(objects, m=8, threshold=0.012)
+    n, labels = spg.components()
+    counts = np.bincount(labels, minlength=n)
+    out = []
+    for c in np.argsort(-counts):
+        if counts[c] < min_points:
+            break
+        seg = objects[labels == c]
+        xy = seg[:, :2] - seg[:, :2].mean(axis=0)
+        if 2.0 * float(np.max(np.linalg.norm(xy, axis=1))) <= 1.3 * size:
+            out.append(seg)
+    return out
+
+
+def _principal_angle(xy: FloatArray) -> float:
+    c = xy - xy.mean(axis=0)
+    w, v = np.linalg.eigh(c.T @ c)
+    major = v[:, int(np.argmax(w))]
+    return float(np.arctan2(major[1], major[0]))
+
+
+def _support_hypotheses(
+    model: Any, objects: FloatArray, table: Plane, d: float, rng: np.random.Generator
+) -> list[PoseHypothesis]:
+    """Poses with a support face of the model on the table plane, refined by ICP."""
+    from mks_sim.geometry.transforms import make_transform
+    from mks_sim.models.refine import ModelSurface, verify_hypotheses
+
+    faces = getattr(model, "faces", ())
+    pts = np.asarray(model.surface_points(), dtype=np.float64)
+    surface = ModelSurface.from_arrays(pts, model.surface_normals())
+    up = table.normal / np.linalg.norm(table.normal)
+    out: list[PoseHypothesis] = []
+    for seg in _object_segments(objects, surface.size):
+        starts: list[PoseHypothesis] = []
+        seg_angle = _principal_angle(seg[:, :2])
+        for face in faces:
+            n = np.asarray(face.normal, dtype=np.float64)
+            if np.max(pts @ n) > face.offset + 0.02 * surface.size:
+                continue  # not a support face (model points beyond it)
+            R0 = _rotation_between(n, -up)
+            rotated = pts @ R0.T
+            model_angle = _principal_angle(rotated[:, :2])
+            for k in range(4):
+                yaw = seg_angle - model_angle + k * np.pi / 2
+                Rz = _rotation_about(up, yaw)
+                R = Rz @ R0
+                moved = pts @ R.T
+                t = np.zeros(3)
+                t[:2] = seg[:, :2].mean(axis=0) - moved[:, :2].mean(axis=0)
+                # the support face on the table plane
+                t += up * (table.offset - float(np.min(moved @ up)))
+                T = make_transform(R, t)
+                starts.append(PoseHypothesis(T, T[:3, 3].copy(), votes=0))
+        if not starts:
+            continue
+        verified = verify_hypotheses(
+            starts,
+            surface,
+            seg,
+            inlier_distance=d,
+            icp_distance=max(4 * d, 0.15 * surface.size),
+            symmetries=model.symmetries(),
+            max_icp=len(starts),
+            full_refine=6,
+            rng=rng,
+        )
+        out.extend(v.hypothesis for v in verified)
+    out.sort(key=lambda h: -h.score)
+    return out
+
+
+def _rotation_between(a: FloatArray, b: FloatArray) -> FloatArray:
+    """Rotation taking unit vector ``a`` to unit vector ``b``."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(a @ b)
+    if np.linalg.norm(v) < 1e-9:
+        if c > 0:
+            return np.eye(3)
+        axis = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+        return _rotation_about(axis / np.linalg.norm(axis), np.pi)
+    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + vx + vx @ vx / (1.0 + c)
+
+
+def _rotation_about(axis: FloatArray, angle: float) -> FloatArray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(np.asarray(axis, dtype=float) * angle).as_matrix()
 
 
 def _consistency(
@@ -426,6 +541,9 @@ def _consistency(
     R, t = T[:3, :3], T[:3, 3]
     P = surface_pts @ R.T + t
     N = surface_nrm @ R.T
+    # Only surface the sensors (all above the table) can see explains a point: a downward
+    # face resting on the table would otherwise "explain" the table under a wrong pose.
+    seen = N[:, 2] > -0.3
     centre = P.mean(axis=0)
     radius = float(np.max(np.linalg.norm(P - centre, axis=1)))
     near = cloud[np.linalg.norm(cloud - centre, axis=1) <= radius + 2 * d]
@@ -434,8 +552,10 @@ def _consistency(
         out["penetration"] = float(np.mean(table.distance(P) < -d))
     if len(near):
         dist, idx = cKDTree(P).query(near)
-        explained = dist <= d
+        dist_seen = cKDTree(P[seen]).query(near)[0] if seen.any() else np.full(len(near), np.inf)
+        explained = dist_seen <= d
         sd = np.einsum("ij,ij->i", near - P[idx], N[idx])
+        sd[dist <= d] = 0.0  # on the surface (a visible or a resting face): not inside
         inside = (~explained) & (sd < -d)
         # vertical columns: a model surface point within d (xy) above an unexplained point
         rest = np.flatnonzero(~explained & ~inside)
