@@ -692,6 +692,7 @@ def localize_cloud(
     viewpoint: ArrayLike | None = None,
     table: Literal["auto", "none"] | Plane = "auto",
     voxel: float | Literal["auto"] | None = "auto",
+    max_points: int = 30000,
     m: int = 12,
     min_segment_points: int = 60,
     min_score: float = 0.5,
@@ -714,8 +715,10 @@ def localize_cloud(
             object rests on), ``"none"`` keeps every point, or a known :class:`Plane`
             (normal towards the objects).
         voxel: ``"auto"`` averages the cloud on a voxel grid of edge max(spacing, 3 sigma)
-            when the estimated noise sigma exceeds 0.2 x the spacing; a number forces that
-            edge; None never averages.
+            when the estimated noise sigma exceeds 0.2 x the spacing, or of edge about
+            spacing x sqrt(N / max_points) when there are more than ``max_points`` points; a
+            number forces that edge; None never averages.
+        max_points: point budget of ``voxel="auto"``.
         m: SPG neighbours.
         min_segment_points: smaller SPG components are ignored.
         min_score: ``found`` needs the best score at least this.
@@ -754,18 +757,25 @@ def localize_cloud(
     t = time.perf_counter()
     spacing, noise = _spacing_and_noise(pts, rng)
     voxel_size = 0.0
+    raw = pts
     if voxel == "auto":
         # Noise comparable to the spacing defeats PCA normals over one SPG ring: average the
-        # cloud on a voxel grid so the spacing is >= 3 sigma (noise falls with the averaging).
+        # cloud on a voxel grid (noise falls with the averaging); what noise is left is
+        # handled by two-ring normals in the grouping.
         if noise > 0.2 * spacing:
             voxel_size = max(spacing, 3.0 * noise)
+        if len(raw) > max_points:
+            # Dense clouds: about max_points points are plenty (and time grows with them).
+            voxel_size = max(voxel_size, 1.1 * spacing * np.sqrt(len(raw) / max_points))
+        if voxel_size > 0:
+            pts = voxel_average(raw, voxel_size)
+            spacing, noise = _spacing_and_noise(pts, rng)
     elif voxel is not None:
         voxel_size = float(voxel)
-    if voxel_size > 0:
-        pts = voxel_average(pts, voxel_size)
-        if len(pts) < 10:
-            raise DataError(f"localize_cloud: only {len(pts)} points left after voxel averaging")
+        pts = voxel_average(raw, voxel_size)
         spacing, noise = _spacing_and_noise(pts, rng)
+    if len(pts) < 10:
+        raise DataError(f"localize_cloud: only {len(pts)} points left after voxel averaging")
     timing["graph"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -806,7 +816,9 @@ def localize_cloud(
                 break
             members = np.flatnonzero(comp == c)
             seg_pts = obj[members]
-            report, seg = _group_segment(seg_pts, m, spacing, vp, table_plane)
+            report, seg = _group_segment(
+                seg_pts, m, spacing, vp, table_plane, normal_rings=2 if noise > 0.2 * spacing else 1
+            )
             segments.append(SegmentReport(keep[members], report[0], report[1], report[2]))
             seg_data.append((seg_pts, seg))
     timing["grouping"] = time.perf_counter() - t
@@ -841,7 +853,7 @@ def localize_cloud(
             # Too few vertexes visible: hypotheses from pairs of planes (and the table).
             t = time.perf_counter()
             pairs: list[tuple[Plane, FloatArray | None]] = [
-                (r.plane, seg_pts[r.indices]) for r in rep.planes[:4]
+                (r.plane, seg_pts[r.indices]) for r in _diverse_planes(rep.planes)
             ]
             if rep.on_table and table_plane is not None:
                 pairs.append((table_plane.flipped(), None))
@@ -888,6 +900,21 @@ def localize_cloud(
         dropped_nan=dropped,
         timing=timing,
     )
+
+
+def _diverse_planes(
+    planes: Sequence[PlanarRegion], max_planes: int = 5, per_direction: int = 2
+) -> list[PlanarRegion]:
+    """The largest planes, at most ``per_direction`` per normal direction (20 deg), so that
+    a face split by noise does not crowd out the other orientations."""
+    chosen: list[PlanarRegion] = []
+    for r in planes:
+        same = sum(1 for c in chosen if abs(c.normal @ r.normal) > np.cos(np.radians(20)))
+        if same < per_direction:
+            chosen.append(r)
+        if len(chosen) == max_planes:
+            break
+    return chosen
 
 
 def _pca_extent(points: FloatArray) -> float:
@@ -938,10 +965,13 @@ def _group_segment(
     spacing: float,
     viewpoint: FloatArray | None,
     table_plane: Plane | None,
+    normal_rings: int = 1,
 ) -> tuple[tuple[tuple[PlanarRegion, ...], Vertexes, bool], Segmentation | None]:
     graph = build_graph(seg_pts, m=m)
     try:
-        seg = segment_surfaces(seg_pts, graph, viewpoint=viewpoint, seeds="all")
+        seg = segment_surfaces(
+            seg_pts, graph, viewpoint=viewpoint, seeds="all", normal_rings=normal_rings
+        )
     except DataError:
         empty = Vertexes(
             np.zeros((0, 3)), np.zeros((0, 3), np.intp), np.zeros((0, 3, 3)), np.zeros(0)

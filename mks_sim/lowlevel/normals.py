@@ -177,6 +177,7 @@ def estimate_normals(
     m: int = 12,
     viewpoint: ArrayLike | None = None,
     curvature_rings: int = 2,
+    normal_rings: int = 1,
 ) -> SurfaceNormals:
     """Normals and surface variation by PCA over each point's SPG neighbourhood.
 
@@ -192,6 +193,7 @@ def estimate_normals(
             curvature of a sphere stand well above sensor noise on a plane, which a one-ring
             neighbourhood does not (variation grows as r^2 on a sphere and falls as 1/r^2
             for noise on a plane, r the neighbourhood radius).
+        normal_rings: SPG rings of the normals' neighbourhood (2 for noisy clouds).
 
     Returns:
         :class:`SurfaceNormals`.
@@ -199,8 +201,8 @@ def estimate_normals(
     pts = as_points(points, "estimate_normals: points", min_points=3)
     if graph is None:
         graph = build_graph(pts, m=m)
-    normals, curvature = _pca(pts, *neighbour_table(graph))
-    if curvature_rings > 1:
+    normals, curvature = _pca(pts, *neighbour_table(graph, rings=normal_rings))
+    if curvature_rings != normal_rings:
         _, curvature = _pca(pts, *neighbour_table(graph, rings=curvature_rings))
     if viewpoint is not None:
         vp = np.asarray(viewpoint, dtype=np.float64).reshape(3)

@@ -129,6 +129,11 @@ class Segmentation:
     spacing: float
 
 
+@dataclass(frozen=True, eq=False)
+class _FixedGraph:
+    adjacency: sparse.csr_array
+
+
 def median_spacing(graph: GraphLike) -> float:
     """Median length of the SPG's edges (0 if it has none)."""
     data = sparse.csr_array(graph.adjacency).data
@@ -183,6 +188,8 @@ def fit_plane_ransac(
     """
     pts = as_points(points, "fit_plane_ransac: points", min_points=3)
     n = len(pts)
+    # Candidates are counted on a subset (the count ranks them just as well).
+    probe = pts if n <= 4000 else pts[rng.choice(n, 4000, replace=False)]
     samples = rng.integers(0, n, size=(iterations, 3))
     a, b, c = pts[samples[:, 0]], pts[samples[:, 1]], pts[samples[:, 2]]
     nrm = np.cross(b - a, c - a)  # (I, 3)
@@ -195,7 +202,7 @@ def fit_plane_ransac(
     # Count inliers of every candidate in chunks to bound memory at (chunk, N).
     best, best_count = 0, -1
     for start in range(0, len(nrm), 32):
-        d = np.abs(nrm[start : start + 32] @ pts.T - off[start : start + 32, None])
+        d = np.abs(nrm[start : start + 32] @ probe.T - off[start : start + 32, None])
         counts = (d <= threshold).sum(axis=1)
         j = int(np.argmax(counts))
         if counts[j] > best_count:
@@ -365,6 +372,7 @@ def segment_surfaces(
     distance: float | None = None,
     min_points: int = 20,
     seeds: str = "planar",
+    normal_rings: int = 1,
 ) -> Segmentation:
     """Group a cloud on its SPG into planar regions and curved regions (sections 2.2, 4.1).
 
@@ -381,6 +389,8 @@ def segment_surfaces(
             surfaces stay curved regions; ``"all"``: any point may seed, flattest first (use
             when noise exceeds ~10% of the sampling spacing and the curvature code marks
             planes curved too).
+        normal_rings: SPG rings of the normals' neighbourhoods (2 smooths noisy normals at
+            the cost of blurring edges wider).
 
     Returns:
         :class:`Segmentation`.
@@ -390,7 +400,8 @@ def segment_surfaces(
         raise DataError(f"segment_surfaces: seeds must be 'planar' or 'all', got {seeds!r}")
     if graph is None:
         graph = build_graph(pts, m=m)
-    sn = estimate_normals(pts, graph, viewpoint=viewpoint)
+    graph = _FixedGraph(sparse.csr_array(graph.adjacency))  # the SPG builds it per access
+    sn = estimate_normals(pts, graph, viewpoint=viewpoint, normal_rings=normal_rings)
     codes = curvature_code(sn.curvature, curvature_threshold)
     spacing = median_spacing(graph)
     dist = 2.0 * spacing if distance is None else float(distance)
