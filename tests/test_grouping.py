@@ -6,12 +6,15 @@ import itertools
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mks_sim.errors import DataError
 from mks_sim.geometry.meshes import box_mesh, sample_surface
 from mks_sim.geometry.scan import synthetic_scan
-from mks_sim.geometry.transforms import make_transform
+from mks_sim.geometry.transforms import make_transform, random_rotation
 from mks_sim.lowlevel.grouping import (
+    PlanarRegion,
     Plane,
     build_graph,
     curvature_code,
@@ -199,3 +202,38 @@ def test_bad_input_raises_clear_errors() -> None:
         plane_vertexes([], np.zeros((5, 3)), tolerance=0.0)
     with pytest.raises(DataError, match="seeds"):
         segment_surfaces(np.random.default_rng(0).uniform(size=(20, 3)), seeds="some")
+
+
+@settings(max_examples=25)
+@given(
+    st.floats(-5, 5), st.floats(-5, 5), st.floats(-5, 5), st.floats(0.2, 10.0), st.integers(0, 99)
+)
+def test_fit_sphere_property(cx: float, cy: float, cz: float, r: float, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    c = np.array([cx, cy, cz])
+    fit = fit_sphere(_sphere(200, r, c, rng))
+    assert np.linalg.norm(fit.center - c) < 1e-6 * max(1.0, r)
+    assert fit.radius == pytest.approx(r, rel=1e-6)
+
+
+@settings(max_examples=25)
+@given(st.integers(0, 10_000))
+def test_vertex_of_three_sampled_planes_is_their_corner(seed: int) -> None:
+    # Three faces of a randomly posed corner, sampled near it: the vertex is the corner.
+    rng = np.random.default_rng(seed)
+    R = random_rotation(rng)
+    corner = rng.uniform(-1, 1, 3)
+    regions, pts = [], []
+    for axis in range(3):
+        uv = rng.uniform(0.05, 1.0, (150, 2))
+        local = np.zeros((150, 3))
+        others = [a for a in range(3) if a != axis]
+        local[:, others[0]], local[:, others[1]] = uv[:, 0], uv[:, 1]
+        p = corner + local @ R.T
+        n = -R[:, axis]  # outward for the octant the faces bound
+        idx = np.arange(len(pts) * 150, (len(pts) + 1) * 150)
+        regions.append(PlanarRegion(idx, Plane(n, float(n @ corner)), p.mean(axis=0)))
+        pts.append(p)
+    v = plane_vertexes(regions, np.vstack(pts), tolerance=0.5)
+    assert len(v) == 1
+    assert np.linalg.norm(v.points[0] - corner) < 1e-9
