@@ -162,8 +162,12 @@ def _adapted(obj: str, model_name: str, entry_id: int, entry: Any) -> Any:
     return adapt_model(entry, model_name)
 
 
-def _resolve_model(obj: str, db: ModelDatabase | None) -> tuple[str, Any, str, str]:
-    """(model name, localizable model, its logical sensor, source ``database``|``builtin``)."""
+def _resolve_model(obj: str, db: ModelDatabase | None) -> tuple[str, Any, str, str, Any]:
+    """(model name, localizable model, its logical sensor, source, database entry or None).
+
+    A database entry that carries only recoverable points (the part's four control points, a
+    ``rotinv`` model) names the matcher; the surface for ICP and checks is the object's mesh.
+    """
     model_name = OBJECT_MODELS[obj]
     try:
         entry = (db if db is not None else _default_db()).get(model_name)
@@ -171,16 +175,14 @@ def _resolve_model(obj: str, db: ModelDatabase | None) -> tuple[str, Any, str, s
         entry = None
     if entry is None:
         log.info("model %r not in the model database; using the built-in model", model_name)
-        return model_name, _builtin_model(obj), _BUILTIN_SENSORS[obj], "builtin"
-    sensor = getattr(entry, "sensor", None) or _BUILTIN_SENSORS[obj]
+        return model_name, _builtin_model(obj), _BUILTIN_SENSORS[obj], "builtin", None
+    sensor = str(getattr(entry, "sensor", None) or _BUILTIN_SENSORS[obj])
     try:
         model = _adapted(obj, model_name, id(entry), entry)
     except (MksError, TypeError) as exc:
-        log.warning(
-            "model %r: database entry unusable (%s); using the built-in model", model_name, exc
-        )
-        return model_name, _builtin_model(obj), sensor, "builtin"
-    return model_name, model, str(sensor), "database"
+        log.info("model %r: %s; surface from the object's mesh", model_name, exc)
+        return model_name, _builtin_model(obj), sensor, "database points + mesh surface", entry
+    return model_name, model, sensor, "database", entry
 
 
 # --------------------------------------------------------------------------- the flow
@@ -227,7 +229,7 @@ def localize_object(
 
     # 1. the model from the database; it names its logical sensor
     t = time.perf_counter()
-    model_name, model, sensor, source = _resolve_model(object_name, db)
+    model_name, model, sensor, source, entry = _resolve_model(object_name, db)
     timing["model"] = time.perf_counter() - t
     diag: dict[str, Any] = {"model": model_name, "model_source": source, "sensor": sensor}
 
@@ -249,7 +251,7 @@ def localize_object(
     if object_name == "sphere":
         hyps, extra = _localize_sphere(model, snap, sensor, points, rng, timing)
     else:
-        hyps, extra = _localize_polyhedral(model, snap, sensor, points, rng, timing)
+        hyps, extra = _localize_polyhedral(model, entry, snap, sensor, points, rng, timing)
     diag.update(extra)
     diag["timing"] = timing
     provenance = dict(snap.provenance)
@@ -310,6 +312,7 @@ def find_table(points: FloatArray, rng: np.random.Generator) -> tuple[Plane | No
 
 def _localize_polyhedral(
     model: Any,
+    entry: Any,
     snap: Any,
     sensor: str,
     points: FloatArray,
@@ -379,22 +382,38 @@ def _localize_polyhedral(
     timing["model_sensor"] = time.perf_counter() - t
     extra["detected_features"] = 0 if detected is None else len(detected)
 
-    # 6. scene consistency of every candidate over the whole cloud
-    t = time.perf_counter()
     d = _noise_scale(points, table, loc.spacing)
     surface_pts = np.asarray(model.surface_points(), dtype=np.float64)
     surface_nrm = np.asarray(model.surface_normals(), dtype=np.float64)
+    candidates = list(loc.hypotheses)
+    # 5'. the model's own matcher on its logical sensor: the rotation-invariant Hough of the
+    # detected vertexes / control points (section 2.2.1), refined by ICP on the points
+    t = time.perf_counter()
+    if detected is not None and len(detected) >= 3 and callable(getattr(entry, "detect", None)):
+        try:
+            coarse = list(entry.detect(detected))[:10]
+        except MksError as exc:
+            log.info("%s: rotation-invariant Hough gave nothing: %s", sensor, exc)
+            coarse = []
+        extra["rotinv_maxima"] = len(coarse)
+        refined = _refine_near(coarse, model, objects, d, rng)
+        extra["rotinv_refined"] = len(refined)
+        candidates += refined
+    timing["rotinv"] = time.perf_counter() - t
+
+    # 6. scene consistency of every candidate over the whole cloud
+    t = time.perf_counter()
     checks = [
-        _consistency(h.matrix, surface_pts, surface_nrm, points, table, d) for h in loc.hypotheses
+        _consistency(h.matrix, surface_pts, surface_nrm, points, table, d) for h in candidates
     ]
     timing["consistency"] = time.perf_counter() - t
     order = sorted(
         range(len(checks)),
-        key=lambda i: (not checks[i]["ok"], -checks[i]["explained"], -loc.hypotheses[i].score),
+        key=lambda i: (not checks[i]["ok"], -checks[i]["explained"], -candidates[i].score),
     )
     extra["inlier_distance_m"] = d
     extra["checks"] = [checks[i] for i in order[:5]]
-    good = [loc.hypotheses[i] for i in order if checks[i]["ok"]]
+    good = [candidates[i] for i in order if checks[i]["ok"]]
     if not good and table is not None:
         # Fallback: the object rests on the table. Hypotheses from every support face of the
         # model put on the sensed table plane, yaw from the footprint's principal axes,
@@ -421,6 +440,41 @@ def _localize_polyhedral(
             dist = cKDTree(detected).query(mv)[0]
             extra["feature_support"] = int((dist < 4 * d).sum())
     return good, extra
+
+
+def _refine_near(
+    hyps: list[PoseHypothesis], model: Any, objects: FloatArray, d: float, rng: np.random.Generator
+) -> list[PoseHypothesis]:
+    """ICP-refine coarse poses on the object points near each (model -> world)."""
+    from mks_sim.models.refine import ModelSurface, verify_hypotheses
+
+    if not hyps or len(objects) < 10:
+        return []
+    pts = np.asarray(model.surface_points(), dtype=np.float64)
+    surface = ModelSurface.from_arrays(pts, model.surface_normals())
+    centre = pts.mean(axis=0)
+    radius = float(np.max(np.linalg.norm(pts - centre, axis=1)))
+    out: list[PoseHypothesis] = []
+    for h in hyps:
+        T = np.asarray(h.matrix, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            continue
+        c = T[:3, :3] @ centre + T[:3, 3]
+        near = objects[np.linalg.norm(objects - c, axis=1) <= radius + 2 * d]
+        if len(near) < 10:
+            continue
+        verified = verify_hypotheses(
+            [h],
+            surface,
+            near,
+            inlier_distance=d,
+            icp_distance=max(4 * d, 0.1 * surface.size),
+            symmetries=model.symmetries(),
+            max_icp=1,
+            rng=rng,
+        )
+        out.extend(v.hypothesis for v in verified)
+    return out
 
 
 def _object_segments(objects: FloatArray, size: float, min_points: int = 60) -> list[FloatArray]:
