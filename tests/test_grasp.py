@@ -41,7 +41,10 @@ def test_cube_axis_is_a_most_horizontal_face_normal(seed: int) -> None:
     tilt = np.abs(R[2, :])
     best = np.flatnonzero(tilt <= tilt.min() + 0.05)
     # ...one of them, projected on the table, is parallel to the closing axis.
-    cos = [abs(axis @ (R[:, i] - R[2, i] * np.array([0, 0, 1.0]))) / np.linalg.norm(R[:2, i]) for i in best]
+    cos = [
+        abs(axis @ (R[:, i] - R[2, i] * np.array([0, 0, 1.0]))) / np.linalg.norm(R[:2, i])
+        for i in best
+    ]
     assert max(cos) == pytest.approx(1.0, abs=1e-9)
     assert plan.width_m == pytest.approx(0.05)
     assert abs((plan.yaw_rad - pref + math.pi) % (2 * math.pi) - math.pi) <= math.pi / 2 + 1e-9
@@ -58,7 +61,9 @@ def test_flat_cube_picks_the_pair_nearest_the_preferred_yaw() -> None:
 
 
 def test_clearance_keeps_fingertips_off_the_table() -> None:
-    plan = plan_grasp(_pose(np.eye(3), (0, 0, 0.76)), CUBE_ACTION, BOX, table_z=0.75, min_clearance_m=0.02)
+    plan = plan_grasp(
+        _pose(np.eye(3), (0, 0, 0.76)), CUBE_ACTION, BOX, table_z=0.75, min_clearance_m=0.02
+    )
     assert plan.grasp_point_world[2] == pytest.approx(0.77)
 
 
@@ -80,8 +85,12 @@ def test_sphere_and_feature() -> None:
 def test_planner_errors() -> None:
     with pytest.raises(DataError, match=r"expected a finite 4x4"):
         plan_grasp(np.full((4, 4), np.nan), CUBE_ACTION, BOX)
-    with pytest.raises(NotFound, match=r"grasp feature 'handle' not in the model; known: \['boss'\]"):
-        plan_grasp(np.eye(4), GraspAction(grasp_type="feature", feature="handle"), geometry_for("part"))
+    with pytest.raises(
+        NotFound, match=r"grasp feature 'handle' not in the model; known: \['boss', 'step'\]"
+    ):
+        plan_grasp(
+            np.eye(4), GraspAction(grasp_type="feature", feature="handle"), geometry_for("part")
+        )
     with pytest.raises(SpecError, match=r"needs a box model, got 'sphere'"):
         plan_grasp(np.eye(4), CUBE_ACTION, geometry_for("sphere_3cm"))
     with pytest.raises(NotFound, match=r"no grasp geometry for model 'torus'"):

@@ -41,7 +41,7 @@ def test_shipped_tasks_load() -> None:
         assert task.action.grasp_type in GRASP_TYPES
         assert task.action.retries >= 1
     assert get_task("grasp_cube").remove == ("sphere",)
-    assert get_task("grasp_part").action.feature == "boss"
+    assert get_task("grasp_part").action.feature == "step"
 
 
 def test_good_file_defaults(tmp_path: Path) -> None:
@@ -66,7 +66,9 @@ def test_good_file_defaults(tmp_path: Path) -> None:
         ('grasp_type = "opposite_faces"', 'grasp_type = "feature"', "'action.feature'"),
     ],
 )
-def test_bad_field_names_file_entry_and_field(tmp_path: Path, old: str, new: str, field: str) -> None:
+def test_bad_field_names_file_entry_and_field(
+    tmp_path: Path, old: str, new: str, field: str
+) -> None:
     assert old in GOOD
     path = _write(tmp_path, GOOD.replace(old, new, 1))
     with pytest.raises(SpecError, match=rf"t\.toml: task 't1', field {field}"):
@@ -79,7 +81,9 @@ def test_bad_toml_and_empty(tmp_path: Path) -> None:
     with pytest.raises(SpecError, match=r"empty\.toml: expected at least one \[\[task\]\]"):
         load_task_file(_write(tmp_path, "", "empty.toml"))
     with pytest.raises(SpecError, match=r"dup\.toml: task 't1', field 'name': duplicate"):
-        load_task_file(_write(tmp_path, GOOD + GOOD.replace("[task.action]", "[task.action]"), "dup.toml"))
+        load_task_file(
+            _write(tmp_path, GOOD + GOOD.replace("[task.action]", "[task.action]"), "dup.toml")
+        )
 
 
 def test_unknown_task(tmp_path: Path) -> None:

@@ -23,7 +23,7 @@ from mks_sim.errors import DataError, DeviceFailure, MksError, NotFound, SensorF
 from mks_sim.sim import names
 from mks_sim.tasks.controller import ArmHandController, RobotNames
 from mks_sim.tasks.evaluate import HOLD_S, HoldMonitor, localization_error
-from mks_sim.tasks.grasp import GraspPlan, plan_grasp
+from mks_sim.tasks.grasp import GraspPlan, rank_grasps
 from mks_sim.tasks.objects import geometry_for
 from mks_sim.tasks.spec import TaskSpec, task_for_object
 
@@ -295,14 +295,18 @@ class GraspRunner:
                 self.scene_points_fn(), est, radius + 0.012, names.TABLE_TOP_Z
             )
         try:
-            plan = plan_grasp(est, act, self.geometry, preferred_yaw=self.ctl.pinch_yaw(),
-                              table_z=names.TABLE_TOP_Z, obstacles_world=obstacles)  # fmt: skip
+            plans = rank_grasps(est, act, self.geometry, preferred_yaw=self.ctl.pinch_yaw(),
+                                table_z=names.TABLE_TOP_Z, obstacles_world=obstacles)  # fmt: skip
         except MksError as exc:
             return False, f"no grasp: {exc}"
-        self.plan = plan
         ctl = self.ctl
         ctl.open(10)
-        if not ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.03):
+        for plan in plans[:4]:  # the next candidate when the arm cannot reach one
+            self.plan = plan
+            if ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.03):
+                break
+            self._note(f"pre-grasp at yaw {plan.yaw_rad:.2f} rad unreachable")
+        else:
             return False, "pre-grasp unreachable"
         if not ctl.move_to(np.asarray(plan.grasp_point_world), plan.yaw_rad, spacing_m=0.01):
             return False, "descent blocked"

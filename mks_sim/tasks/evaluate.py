@@ -38,8 +38,8 @@ def true_object_to_world(world, name: str) -> np.ndarray:
 def lowest_point_z(model: mujoco.MjModel, data: mujoco.MjData, body: str) -> float:
     """World z (m) of the lowest point of the body's geoms (every group, collision or not).
 
-    Spheres are exact; other geoms use the 8 corners of their local bounding box (exact for
-    boxes, conservative for meshes).
+    Spheres and meshes are exact; other geoms use the 8 corners of their local bounding box
+    (exact for boxes, conservative for cylinders and capsules).
     """
     bid = model.body(body).id
     zmin = np.inf
@@ -48,9 +48,15 @@ def lowest_point_z(model: mujoco.MjModel, data: mujoco.MjData, body: str) -> flo
         if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE:
             zmin = min(zmin, pos[2] - model.geom_size[g, 0])
             continue
+        R = data.geom_xmat[g].reshape(3, 3)
+        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
+            mesh = model.geom_dataid[g]
+            start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+            verts = model.mesh_vert[start : start + count]  # (V, 3) geom frame
+            zmin = min(zmin, float(np.min(verts @ R[2]) + pos[2]))
+            continue
         centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
         corners = centre + half * np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
-        R = data.geom_xmat[g].reshape(3, 3)
         zmin = min(zmin, float(np.min((corners @ R.T)[:, 2] + pos[2])))
     return float(zmin)
 

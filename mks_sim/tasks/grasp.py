@@ -114,20 +114,21 @@ def finger_collisions(point: np.ndarray, yaw: float, obstacles_world: np.ndarray
     return int(np.count_nonzero(d.min(axis=0) < FINGER_CLEARANCE_M))
 
 
-def _choose(
+def _ranked(
     candidates: list[tuple[float, float]],
     point: np.ndarray,
     preferred_yaw: float,
     obstacles_world: np.ndarray | None,
-) -> tuple[float, float]:
-    """The candidate with fewest finger collisions, then the least wrist turn."""
+) -> list[tuple[float, float]]:
+    """Candidates by fewest finger collisions, then least wrist turn (yaw near preferred)."""
 
     def key(c: tuple[float, float]) -> tuple[int, float]:
         turn = abs(wrap_angle(c[0] - preferred_yaw))
         return finger_collisions(point, c[0], obstacles_world), turn
 
-    yaw, width = min(candidates, key=key)
-    return preferred_yaw + wrap_angle(yaw - preferred_yaw), width
+    return [
+        (preferred_yaw + wrap_angle(y - preferred_yaw), w) for y, w in sorted(candidates, key=key)
+    ]
 
 
 def _check_pose(object_to_world: np.ndarray) -> np.ndarray:
@@ -146,7 +147,21 @@ def plan_grasp(
     min_clearance_m: float = 0.018,
     obstacles_world: np.ndarray | None = None,
 ) -> GraspPlan:
-    """Choose a top-down grasp for an object at ``object_to_world``.
+    """The best grasp of :func:`rank_grasps` (same arguments)."""
+    return rank_grasps(object_to_world, action, geometry, preferred_yaw, table_z,
+                       min_clearance_m, obstacles_world)[0]  # fmt: skip
+
+
+def rank_grasps(
+    object_to_world: np.ndarray,
+    action: GraspAction,
+    geometry: ObjectGeometry,
+    preferred_yaw: float = 0.0,
+    table_z: float = 0.0,
+    min_clearance_m: float = 0.018,
+    obstacles_world: np.ndarray | None = None,
+) -> list[GraspPlan]:
+    """Top-down grasps for an object at ``object_to_world``, best first.
 
     Args:
         object_to_world: (4, 4) estimated pose of the object (never ground truth).
@@ -197,11 +212,13 @@ def plan_grasp(
     else:  # pragma: no cover - the spec loader rejects other types
         raise SpecError(f"unknown grasp_type {gt!r}")
     point[2] = max(point[2], table_z + min_clearance_m)
-    yaw, width = _choose(candidates, point, preferred_yaw, obstacles_world)
-    return GraspPlan(
-        grasp_point_world=(float(point[0]), float(point[1]), float(point[2])),
-        yaw_rad=float(yaw),
-        width_m=float(width),
-        approach_height_m=action.approach_height_m,
-        lift_height_m=action.lift_height_m,
-    )
+    return [
+        GraspPlan(
+            grasp_point_world=(float(point[0]), float(point[1]), float(point[2])),
+            yaw_rad=float(yaw),
+            width_m=float(width),
+            approach_height_m=action.approach_height_m,
+            lift_height_m=action.lift_height_m,
+        )
+        for yaw, width in _ranked(candidates, point, preferred_yaw, obstacles_world)
+    ]

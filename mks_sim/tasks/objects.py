@@ -17,11 +17,17 @@ PART_BOSS = GraspFeature(
     point_object=(0.02, 0.0, 0.022), axis_object=(1.0, 0.0, 0.0), width_m=0.013
 )
 
+# The L-shaped step over the -x end: 22 mm high, 20 mm deep, across the full 60 mm width;
+# pinched across its width (along the part's y axis).
+PART_STEP = GraspFeature(
+    point_object=(-0.04, 0.0, 0.013), axis_object=(0.0, 1.0, 0.0), width_m=0.06
+)
+
 GEOMETRIES: dict[str, ObjectGeometry] = {
     "cube_5cm": ObjectGeometry("box", half_extents_m=(_H, _H, _H)),
     "sphere_3cm": ObjectGeometry("sphere", radius_m=names.SPHERE_RADIUS_M),
     "part": ObjectGeometry(
-        "part", half_extents_m=(0.05, 0.03, 0.015), features={"boss": PART_BOSS}
+        "part", half_extents_m=(0.05, 0.03, 0.015), features={"boss": PART_BOSS, "step": PART_STEP}
     ),
 }
 

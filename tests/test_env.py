@@ -1,0 +1,161 @@
+"""The gymnasium environment ``mks_sim/Grasp-v0`` (Gymnasium-Robotics-style API tests).
+
+These tests check the env API, not localization: they pass a ground-truth ``localize_fn``
+(the env's default is the sensor-based pipeline) so that they stay cheap.
+"""
+
+from __future__ import annotations
+
+import pickle
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import mks_sim  # noqa: F401  (registers the envs)
+from mks_sim.envs.grasp_env import GraspEnv
+
+
+def _truth_localize(world, name):  # env API alone: ground truth stands in for sensing
+    from mks_sim.sim import truth
+
+    return truth.object_to_world(world, name)
+
+
+def _make(**kw):
+    kw.setdefault("localize_fn", _truth_localize)
+    return gym.make("mks_sim/Grasp-v0", **kw)
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    return bool(np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True))
+
+
+def test_registered_both_ways() -> None:
+    assert "mks_sim/Grasp-v0" in gym.registry
+    env = gym.make("mks_sim:mks_sim/Grasp-v0", object="sphere", localize_fn=_truth_localize)
+    try:
+        assert isinstance(env.unwrapped, GraspEnv)
+        assert env.unwrapped.object == "sphere"
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+def test_check_env_passes() -> None:
+    env = GraspEnv(object="cube", localize_fn=_truth_localize, render_mode="rgb_array",
+                   observe_image=True, observe_depth=True, observe_points=True, n_points=64,
+                   image_size=(32, 24), render_size=(64, 48))  # fmt: skip
+    try:
+        with pytest.warns(UserWarning):  # infinite Box bounds of proprioception: intended
+            check_env(env, skip_render_check=False)
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+def test_same_seed_same_rollout_and_reset_restores_state() -> None:
+    env = _make(object="cube")
+    try:
+        actions = np.random.default_rng(0).uniform(-1, 1, (6, 5)).astype(np.float32)
+
+        def rollout():
+            obs, _ = env.reset(seed=11)
+            out = [obs]
+            for a in actions:
+                out.append(env.step(a)[0])
+            return out
+
+        first = rollout()
+        state_after_reset = None
+        env.reset(seed=11)
+        d = env.unwrapped.world.data
+        state_after_reset = (d.qpos.copy(), d.qvel.copy(), d.act.copy(), d.ctrl.copy(), d.time)
+        for a in actions:
+            env.step(a)
+        env.reset(seed=11)
+        again = (d.qpos.copy(), d.qvel.copy(), d.act.copy(), d.ctrl.copy(), d.time)
+        for x, y in zip(state_after_reset, again):
+            assert np.array_equal(x, y)
+        second = rollout()
+        assert all(_same(a, b) for a, b in zip(first, second))
+        other, _ = env.reset(seed=12)
+        assert not _same(first[0]["pose_estimate"], other["pose_estimate"])
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+def test_render_pickle_and_faults() -> None:
+    env = _make(object="sphere", render_mode="rgb_array", render_size=(64, 48),
+                faults=("touch_finger_1",))  # fmt: skip
+    try:
+        obs, info = env.reset(seed=3)
+        frame = env.render()
+        assert frame.shape == (48, 64, 3) and frame.dtype == np.uint8 and frame.std() > 0
+        assert obs["touch"][0] == -1.0  # failed pad reported as -1
+        assert set(info) >= {"success", "localization_error", "clearance_m"}
+        clone = pickle.loads(pickle.dumps(env))
+        try:
+            a, _ = env.reset(seed=5)
+            b, _ = clone.reset(seed=5)
+            assert _same(a, b)
+            act = np.array([0.5, -0.2, 0.1, 0.0, -1.0], np.float32)
+            assert _same(env.step(act)[0], clone.step(act)[0])
+        finally:
+            clone.close()
+    finally:
+        env.close()
+    none_env = _make(object="sphere")
+    try:
+        none_env.reset(seed=0)
+        assert none_env.render() is None
+    finally:
+        none_env.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("vector", ["sync", "async"])
+def test_vector_envs(vector: str) -> None:
+    fns = [lambda: gym.make("mks_sim/Grasp-v0", object="cube", localize_fn=_truth_localize)] * 2
+    if vector == "sync":
+        venv = gym.vector.SyncVectorEnv(fns)
+    else:  # spawn: forking a process that holds EGL contexts is unsafe
+        venv = gym.vector.AsyncVectorEnv(fns, context="spawn")
+    try:
+        obs, _ = venv.reset(seed=[1, 2])
+        assert obs["pinch_pos"].shape == (2, 3)
+        obs, rew, term, trunc, _ = venv.step(venv.action_space.sample())
+        assert rew.shape == (2,) and term.shape == (2,)
+    finally:
+        venv.close()
+
+
+@pytest.mark.slow
+def test_scripted_policy_through_the_env_lifts() -> None:
+    """The scripted grasp run through the env API (action deltas + grip) succeeds."""
+    from mks_sim.envs.scripted import ScriptedGraspPolicy
+
+    env = _make(object="sphere", max_episode_steps=150)
+    try:
+        obs, _ = env.reset(seed=4)
+        policy = ScriptedGraspPolicy(env.unwrapped)
+        for _ in range(150):
+            obs, _, terminated, truncated, info = env.step(policy(obs))
+            if terminated or truncated:
+                break
+        assert info["success"], policy.phase
+    finally:
+        env.close()
+
+
+def test_bad_arguments() -> None:
+    from mks_sim.errors import MksError, NotFound
+
+    with pytest.raises(NotFound, match="unknown object 'pyramid'"):
+        GraspEnv(object="pyramid")
+    with pytest.raises(MksError, match="render_mode: expected None or 'rgb_array'"):
+        GraspEnv(object="cube", render_mode="human")
