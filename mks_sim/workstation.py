@@ -526,8 +526,9 @@ def _support_hypotheses(
             R0 = _rotation_between(n, -up)
             rotated = pts @ R0.T
             model_angle = _principal_angle(rotated[:, :2])
-            for k in range(4):
-                yaw = seg_angle - model_angle + k * np.pi / 2
+            yaws = [seg_angle - model_angle + k * np.pi / 2 for k in range(4)]
+            yaws += [k * np.pi / 6 for k in range(12)]  # the footprint axis may mislead
+            for yaw in yaws:
                 Rz = _rotation_about(up, yaw)
                 R = Rz @ R0
                 moved = pts @ R.T
@@ -547,7 +548,7 @@ def _support_hypotheses(
             icp_distance=max(4 * d, 0.15 * surface.size),
             symmetries=model.symmetries(),
             max_icp=len(starts),
-            full_refine=6,
+            full_refine=8,
             rng=rng,
         )
         out.extend(v.hypothesis for v in verified)
@@ -616,10 +617,12 @@ def _consistency(
         below = np.zeros(len(near), dtype=bool)
         if len(rest):
             tree2 = cKDTree(P[:, :2])
-            cols = tree2.query_ball_point(near[rest, :2], r=d)
+            # radius d/2 and two model points: sensor noise along the silhouette edges
+            # (stereo) does not count, a point well inside the footprint does
+            cols = tree2.query_ball_point(near[rest, :2], r=0.5 * d)
             zq = near[rest, 2]
             for j, c in enumerate(cols):
-                if c and np.max(P[c, 2]) > zq[j] + 2 * d:
+                if len(c) >= 2 and np.sort(P[c, 2])[-2] > zq[j] + 2 * d:
                     below[rest[j]] = True
         out["explained"] = int(explained.sum())
         out["inside"] = int(inside.sum())
