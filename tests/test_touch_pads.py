@@ -10,7 +10,7 @@ from mks_sim.sim.robot import arm_qpos_for_pinch
 from mks_sim.sim.world import World, build_world
 
 TOUCH_THRESHOLD_N = 1e-3
-# Hand yaw relative to the cube for which the 2-finger + thumb grasp is balanced on the
+# Hand yaw relative to the cube for which the one-against-two-fingers grasp is balanced on the
 # cube's faces (measured: every pad in contact).
 GRASP_YAW = -np.pi / 12
 

@@ -14,7 +14,7 @@ Scenes (paper section 4.1):
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -57,7 +57,6 @@ class SceneSpec:
     region_center_xy: tuple[float, float] = names.OBJECT_REGION_CENTER_XY
     region_half_xy: tuple[float, float] = names.OBJECT_REGION_HALF_XY
     support_z: float = names.TABLE_TOP_Z
-    extras: dict[str, object] = field(default_factory=dict)
 
 
 def look_at_xyaxes(eye: np.ndarray, target: np.ndarray) -> list[float]:
@@ -201,23 +200,25 @@ def _add_sensor_mounts(root: mjcf.RootElement, centre: np.ndarray) -> None:
         )
 
 
-def _place_in_region(
-    spec: objects.ObjectSpec, xy: tuple[float, float], z0: float
-) -> tuple[float, float, float]:
-    return (xy[0], xy[1], z0 + spec.rest_height_m)
+def _rest_at(root: mjcf.RootElement, spec: objects.ObjectSpec, xy: tuple[float, float]) -> None:
+    """Put ``spec``'s body at rest on the table at ``xy`` (its canonical orientation)."""
+    body = root.find("body", spec.name)
+    body.pos = (xy[0], xy[1], names.TABLE_TOP_Z + spec.rest_height_m)
+    body.quat = spec.rest_quat
 
 
 def scene2() -> SceneSpec:
     """The cube with the sphere atop it among three clutter objects."""
     root, robot = _workstation("scene2")
-    z0 = names.TABLE_TOP_Z
-    cube = objects.add_cube(root, (0.0, 0.0, z0 + names.CUBE_SIZE_M / 2))
-    sphere = objects.add_sphere(root, (0.0, 0.0, z0 + names.CUBE_SIZE_M + names.SPHERE_RADIUS_M))
-    layout = ((-0.09, 0.05), (0.08, 0.06), (-0.07, -0.07))
+    cube = objects.add_cube(root, (0.0, 0.0, 0.0))
+    _rest_at(root, cube, (0.0, 0.0))
+    sphere = objects.add_sphere(root, (0.0, 0.0, 0.0))
+    on_top = names.TABLE_TOP_Z + 2 * cube.rest_height_m + sphere.rest_height_m
+    root.find("body", names.SPHERE).pos = (0.0, 0.0, on_top)
     clutter = []
-    for i, xy in enumerate(layout):
-        spec_z = {0: 0.035, 1: 0.015, 2: 0.04}[i]
-        clutter.append(objects.add_clutter(root, i, (xy[0], xy[1], z0 + spec_z)))
+    for i, xy in enumerate(((-0.09, 0.05), (0.08, 0.06), (-0.07, -0.07))):
+        clutter.append(objects.add_clutter(root, i, (0.0, 0.0, 0.0)))
+        _rest_at(root, clutter[-1], xy)
     return SceneSpec(
         name="scene2",
         root=root,
@@ -249,10 +250,9 @@ def scene1() -> SceneSpec:
 def part_scene() -> SceneSpec:
     """The industrial part alone on the table (yawed so no face is axis-aligned)."""
     root, robot = _workstation("part")
-    spec = objects.add_part(root, (0.0, 0.0, names.TABLE_TOP_Z))
-    body = root.find("body", names.PART)
-    body.euler = (0.0, 0.0, 0.35)
-    body.pos = (0.0, 0.0, names.TABLE_TOP_Z + spec.rest_height_m)
+    spec = objects.add_part(root, (0.0, 0.0, 0.0))
+    _rest_at(root, spec, (0.0, 0.0))
+    root.find("body", names.PART).quat = (np.cos(0.175), 0.0, 0.0, np.sin(0.175))  # yaw 0.35
     return SceneSpec(name="part", root=root, robot=robot, objects=(spec,))
 
 
