@@ -59,3 +59,12 @@ def test_export_scene_loads_in_plain_mujoco(tmp_path, scene2) -> None:
         scene2.model.nsensor,
         scene2.model.ncam,
     )
+
+
+def test_package_exports_build_world_lazily() -> None:
+    import mks_sim.sim as sim
+    from mks_sim.sim.world import World
+
+    assert sim.build_world is build_world and sim.World is World
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        _ = sim.nope
