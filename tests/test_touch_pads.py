@@ -103,3 +103,20 @@ def test_default_contact_model_creeps() -> None:
     default = dict(cone=0, impratio=1.0, noslip_iterations=0)  # cone 0 = pyramidal
     lift, slip_mm = _held_slip_mm(_lone_cube_world(default))
     assert slip_mm > 1.0 or lift < 0.10
+
+
+def test_taxel_layout_rows_run_towards_the_tip() -> None:
+    world = build_world("scene2")
+    for f in names.FINGERS:
+        knuckle = world.data.body(f"{names.HAND_PREFIX}b_finger_{f}").xpos
+        dist = np.array(
+            [
+                np.linalg.norm(world.data.site(names.touch_site(f, i)).xpos - knuckle)
+                for i in range(names.TAXELS_PER_PAD)
+            ]
+        ).reshape(names.TOUCH_ROWS, names.TOUCH_COLS)
+        assert np.all(np.diff(dist.mean(axis=1)) > 0.005)  # 7 mm pitch along the finger
+        site = world.model.site(names.touch_site(f, 4))
+        geom = world.model.geom(names.touch_geom(f, 4))
+        assert site.bodyid[0] == geom.bodyid[0]
+        assert world.model.body(site.bodyid[0]).name == names.FINGER_TIP_BODIES[f - 1]
