@@ -123,7 +123,10 @@ def save_points(
         idx = np.random.default_rng(0).choice(len(pts), max_points, replace=False)
     c = None if labels is None else np.asarray(labels)[idx]
     if len(idx):
-        ax.scatter(pts[idx, 0], pts[idx, 1], pts[idx, 2], s=1, c=c, cmap="tab20")
+        if c is None:
+            ax.scatter(pts[idx, 0], pts[idx, 1], pts[idx, 2], s=1, color="tab:blue")
+        else:
+            ax.scatter(pts[idx, 0], pts[idx, 1], pts[idx, 2], s=1, c=c, cmap="tab20")
     if edges is not None and len(edges):
         e = np.asarray(edges)[:: max(1, len(edges) // 3000)]
         for i, j in e:
@@ -136,6 +139,59 @@ def save_points(
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z (m)")
+    path = Path(path)
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def save_votes(hypotheses: Sequence[Any], path: str | Path, title: str = "", top: int = 12) -> Path:
+    """Bar chart of the votes (and scores) of pose hypotheses: the accumulator maxima."""
+    fig, plt = _figure(title)
+    ax = fig.add_subplot(111)
+    hyps = list(hypotheses)[:top]
+    votes = [int(getattr(h, "votes", 0)) for h in hyps]
+    scores = [float(getattr(h, "score", float("nan"))) for h in hyps]
+    if hyps:
+        ax.bar(range(len(hyps)), votes, color="tab:blue")
+        for i, s in enumerate(scores):
+            if math.isfinite(s):
+                ax.text(i, votes[i], f"{s:.2f}", ha="center", va="bottom", fontsize=7)
+    else:
+        ax.text(0.5, 0.5, "no maxima", ha="center", transform=ax.transAxes)
+    ax.set_xlabel("hypothesis (best first; label = verification score)")
+    ax.set_ylabel("votes")
+    path = Path(path)
+    fig.savefig(path, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def save_grasp(object_to_world: np.ndarray, plan: Any, path: str | Path, title: str = "") -> Path:
+    """Top view of a chosen grasp: the estimated object frame, the pinch point, the closing
+    axis and the open fingertips."""
+    from mks_sim.tasks.grasp import FINGERTIPS_XY
+
+    fig, plt = _figure(title)
+    ax = fig.add_subplot(111)
+    T = np.asarray(object_to_world, dtype=float)
+    o = T[:3, 3]
+    for k, colour in enumerate(("r", "g", "b")):
+        ax.annotate(
+            "", o[:2] + 0.03 * T[:2, k], o[:2], arrowprops={"arrowstyle": "->", "color": colour}
+        )
+    p = np.asarray(plan.grasp_point_world)
+    c, s = math.cos(plan.yaw_rad), math.sin(plan.yaw_rad)
+    tips = FINGERTIPS_XY @ np.array([[c, s], [-s, c]]) + p[:2]
+    ax.plot(*p[:2], "k+", ms=12, label="pinch point")
+    ax.plot(tips[:, 0], tips[:, 1], "o", ms=10, mfc="none", label="open fingertips")
+    half = plan.width_m / 2
+    ax.plot([p[0] - half * c, p[0] + half * c], [p[1] - half * s, p[1] + half * s], "m-", lw=3,
+            label=f"closing axis, width {1000 * plan.width_m:.0f} mm")  # fmt: skip
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.legend(fontsize=7)
     path = Path(path)
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
