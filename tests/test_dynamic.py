@@ -58,7 +58,7 @@ def _check_same_as_fresh(dyn: DynamicKDTree, q: np.ndarray) -> None:
 
 
 @pytest.mark.parametrize("metric", METRICS, ids=["euclidean", "w_chebyshev", "sum_of"])
-@settings(max_examples=25)
+@settings(max_examples=15)
 @given(ops=OPS, seed=st.integers(0, 2**16))
 def test_ops_sequence_equals_fresh_tree(metric, ops, seed):
     rng = np.random.default_rng(seed)

@@ -67,9 +67,10 @@ class KDTree:
         self.n, self.m = arr.shape
         self.leafsize = int(leafsize)
         self._scale = self.metric.coordinate_scale(self.m)
+        self._unit_scale = bool(np.all(self._scale == 1.0))
         self._p = self.metric.p if self.metric.is_minkowski else math.inf
         self.tree = cKDTree(
-            self.data * self._scale, leafsize=self.leafsize, balanced_tree=True, compact_nodes=True
+            self._scaled(self.data), leafsize=self.leafsize, balanced_tree=True, compact_nodes=True
         )
         if self.n:
             self._lo = self.data.min(axis=0)
@@ -78,6 +79,10 @@ class KDTree:
             self._lo = self._hi = np.zeros(self.m)
 
     # ------------------------------------------------------------------ helpers
+    def _scaled(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Coordinates as the cKDTree sees them (no copy for an unscaled metric)."""
+        return x if self._unit_scale else x * self._scale
+
     def _queries(self, x: ArrayLike, where: str) -> tuple[NDArray[np.float64], bool]:
         arr = np.asarray(x, dtype=float)
         single = arr.ndim == 1
@@ -97,7 +102,7 @@ class KDTree:
         bounds = self.metric.axis_bounds(q, r, self._span(q))  # (Q, k)
         # Box query in scaled space: Chebyshev radius = max_i bound_i * scale_i, then box filter.
         radius = (bounds * self._scale).max(axis=1)
-        cands = self.tree.query_ball_point(q * self._scale, radius, p=math.inf, workers=workers)
+        cands = self.tree.query_ball_point(self._scaled(q), radius, p=math.inf, workers=workers)
         for j in range(len(q)):
             idx = np.asarray(cands[j], dtype=np.intp)
             if idx.size:
@@ -137,7 +142,7 @@ class KDTree:
         q, single = self._queries(x, "KDTree.query")
         if self.metric.is_minkowski:
             d, i = self.tree.query(
-                q * self._scale,
+                self._scaled(q),
                 k=k,
                 eps=eps,
                 p=self._p,
@@ -169,7 +174,7 @@ class KDTree:
         if self.n == 0:
             return d_out, i_out
         kk = min(k, self.n)
-        _, cand = self.tree.query(q * self._scale, k=kk, p=math.inf, workers=workers)
+        _, cand = self.tree.query(self._scaled(q), k=kk, p=math.inf, workers=workers)
         cand = np.asarray(cand, np.intp).reshape(nq, kk)
         exact = self.metric.distance(q[:, None, :], self.data[cand])  # (Q, kk)
         radius = exact.max(axis=1)  # the k-th true distance is <= this (kk points reach it)
@@ -213,7 +218,7 @@ class KDTree:
         results: list[tuple[NDArray[np.intp], NDArray[np.float64]]]
         if self.metric.is_minkowski:
             lists = self.tree.query_ball_point(
-                q * self._scale, rr, p=self._p, eps=eps, workers=workers, return_sorted=sort
+                self._scaled(q), rr, p=self._p, eps=eps, workers=workers, return_sorted=sort
             )
             results = []
             for j in range(len(q)):
