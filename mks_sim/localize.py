@@ -290,6 +290,17 @@ class PolyhedralModel:
         return np.stack([c.point for c in self.corners])
 
     @property
+    def corner_triples(self) -> tuple[FloatArray, FloatArray]:
+        """Every corner with every ordered triple of its face normals: (K, 3) corner
+        positions and (K, 3, 3) normals (rows)."""
+        pts, nrm = [], []
+        for c in self.corners:
+            for perm in itertools.permutations(range(len(c.normals)), 3):
+                pts.append(c.point)
+                nrm.append(c.normals[list(perm)])
+        return np.array(pts).reshape(-1, 3), np.array(nrm).reshape(-1, 3, 3)
+
+    @property
     def face_pairs(self) -> tuple[NDArray[np.intp], NDArray[np.intp], FloatArray, FloatArray]:
         """Ordered pairs of non-parallel faces: (K,) first and second face indices, (K,)
         cosines of their normals and (K, 3, 3) frames (see :func:`_frame`)."""
@@ -369,15 +380,6 @@ def _mesh_corners(
 # --------------------------------------------------------------------------- matching
 
 
-def _kabsch_normals(M: FloatArray, N: FloatArray) -> tuple[FloatArray, float]:
-    """Rotation R with R m_i ~ n_i for rows of (3, 3) M, N; and the worst angle (deg)."""
-    U, _, Vt = np.linalg.svd(M.T @ N)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    cos = np.einsum("ij,ij->i", M @ R.T, N)
-    return R, float(np.degrees(np.arccos(np.clip(cos.min(), -1.0, 1.0))))
-
-
 def vertex_hypotheses(
     model: PolyhedralModel,
     detected: Vertexes,
@@ -403,24 +405,33 @@ def vertex_hypotheses(
     cpts = model.vertexes
     out: list[tuple[int, FloatArray, NDArray[np.int64]]] = []
     det_tree = cKDTree(detected.points)
+    c_point, c_normals = model.corner_triples  # (K, 3), (K, 3, 3): every ordered triple
+    c_gram = np.einsum("kij,klj->kil", c_normals, c_normals)  # (K, 3, 3)
+    cos_max = np.cos(np.radians(max_angle_deg))
     for di in range(len(detected)):
         Nd = detected.normals[di]
-        Gd = Nd @ Nd.T
-        for corner in model.corners:
-            for perm in itertools.permutations(range(len(corner.normals)), 3):
-                M = corner.normals[list(perm)]
-                if np.abs(M @ M.T - Gd).max() > 0.35:
-                    continue
-                R, worst = _kabsch_normals(M, Nd)
-                if worst > max_angle_deg:
-                    continue
-                T = make_transform(R, detected.points[di] - R @ corner.point)
-                moved = cpts @ R.T + T[:3, 3]
-                d, j = det_tree.query(moved, distance_upper_bound=vote_distance)
-                hit = np.isfinite(d)
-                corr = np.column_stack([j[hit], np.flatnonzero(hit)]).astype(np.int64)
-                corr = corr[np.unique(corr[:, 0], return_index=True)[1]]
-                out.append((len(corr), T, corr))
+        sel = np.flatnonzero(np.abs(c_gram - Nd @ Nd.T).max(axis=(1, 2)) <= 0.35)
+        if sel.size == 0:
+            continue
+        M = c_normals[sel]  # (K', 3, 3) rows = model normals
+        # Batched Kabsch: R m_i ~ n_i.
+        U, _, Vt = np.linalg.svd(np.einsum("kji,jl->kil", M, Nd))
+        V = np.transpose(Vt, (0, 2, 1))
+        d = np.sign(np.linalg.det(V @ np.transpose(U, (0, 2, 1))))
+        V[:, :, 2] *= d[:, None]
+        R = V @ np.transpose(U, (0, 2, 1))  # (K', 3, 3)
+        cos = np.einsum("kij,kmj,mi->km", R, M, Nd).min(axis=1)  # worst normal agreement
+        good = cos >= cos_max
+        R, kept = R[good], sel[good]
+        t = detected.points[di] - np.einsum("kij,kj->ki", R, c_point[kept])  # (K'', 3)
+        moved = np.einsum("kij,vj->kvi", R, cpts) + t[:, None, :]  # (K'', V, 3)
+        dist, j = det_tree.query(moved.reshape(-1, 3), distance_upper_bound=vote_distance)
+        dist, j = dist.reshape(len(R), -1), j.reshape(len(R), -1)
+        for k in range(len(R)):
+            hit = np.isfinite(dist[k])
+            corr = np.column_stack([j[k, hit], np.flatnonzero(hit)]).astype(np.int64)
+            corr = corr[np.unique(corr[:, 0], return_index=True)[1]]
+            out.append((len(corr), make_transform(R[k], t[k]), corr))
     out.extend(_rotinv_hypotheses(model, detected, vote_distance))
     if not out:
         return []
@@ -471,13 +482,13 @@ def plane_pair_hypotheses(
         max_angle_deg: tolerance on the angle between the two normals.
         keep: hypotheses returned (best quick inlier fraction first).
     """
-    sub = scene_points[:: max(1, len(scene_points) // 150)]
+    sub = scene_points[:: max(1, len(scene_points) // 80)]
     faces = model.faces
     pa, pb, pcos, pframes = model.face_pairs
     out: list[tuple[float, FloatArray]] = []
     cos_tol = np.sin(np.radians(max_angle_deg))
     slack = 4 * inlier_distance
-    for (P, p_pts), (Q, _) in itertools.permutations(planes, 2):
+    for (P, p_pts), (Q, q_pts) in itertools.permutations(planes, 2):
         if p_pts is None:
             continue
         cpq = float(P.normal @ Q.normal)
@@ -495,6 +506,12 @@ def plane_pair_hypotheses(
             ae, af = A.points @ (R.T @ e), A.points @ (R.T @ f_dir)
             if np.ptp(pe) > np.ptp(ae) + slack or np.ptp(pf) > np.ptp(af) + slack:
                 continue
+            if q_pts is not None:
+                g = np.cross(Q.normal, e)  # Q's in-plane direction across the shared edge
+                qe, qg = q_pts @ e, q_pts @ g
+                be, bg = B.points @ (R.T @ e), B.points @ (R.T @ g)
+                if np.ptp(qe) > np.ptp(be) + slack or np.ptp(qg) > np.ptp(bg) + slack:
+                    continue
             mid_s = (pe.max() + pe.min()) / 2
             mid_m = (ae.max() + ae.min()) / 2
             lhs = np.stack([P.normal, Q.normal, e])
@@ -603,7 +620,10 @@ class Localization:
 def voxel_average(points: FloatArray, voxel: float) -> FloatArray:
     """(M, 3) centroids of the points in each occupied cube of edge ``voxel``."""
     keys = np.floor(points / voxel).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]  # one int64 per cell
+    _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
     out = np.zeros((len(counts), 3))
     for d in range(3):
@@ -615,7 +635,7 @@ def _spacing_and_noise(points: FloatArray, rng: np.random.Generator) -> tuple[fl
     """Median nearest-neighbour distance and a noise estimate (median RMS distance of 12
     nearest neighbours from their fitted plane; the planar majority of a scene dominates)."""
     n = len(points)
-    probe = points if n <= 3000 else points[rng.choice(n, 3000, replace=False)]
+    probe = points if n <= 1500 else points[rng.choice(n, 1500, replace=False)]
     k = min(12, n)
     d, idx = cKDTree(points).query(probe, k=k)
     spacing = float(np.median(d[:, 1])) if k > 1 else 0.0

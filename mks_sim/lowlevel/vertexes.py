@@ -87,25 +87,42 @@ def plane_vertexes(
     trees = [cKDTree(pts[r.indices]) for r in regions]
     n_regions = len(regions)
     sin_min = np.sin(np.radians(min_angle_deg))
-    found: list[tuple[FloatArray, tuple[int, int, int], float]] = []
-    for triple in itertools.combinations(range(len(planes)), 3):
-        if sum(t >= n_regions for t in triple) > 1:
-            continue
-        N = np.stack([planes[t].normal for t in triple])  # (3, 3)
-        pair_sin = [np.linalg.norm(np.cross(N[a], N[b])) for a, b in ((0, 1), (0, 2), (1, 2))]
-        if min(pair_sin) < sin_min or abs(np.linalg.det(N)) < sin_min * sin_min:
-            continue
-        d = np.array([planes[t].offset for t in triple])
-        v = np.linalg.solve(N, d)
-        dists = [float(trees[t].query(v)[0]) for t in triple if t < n_regions]
-        worst = max(dists) if dists else 0.0
-        if worst <= tolerance:
-            found.append((v, triple, worst))
+    cands: list[tuple[FloatArray, tuple[int, int, int]]] = []
+    triples = np.array(
+        [
+            t
+            for t in itertools.combinations(range(len(planes)), 3)
+            if sum(np.array(t) >= n_regions) <= 1
+        ],
+        dtype=np.intp,
+    ).reshape(-1, 3)
+    if len(triples):
+        normals = np.stack([p.normal for p in planes])
+        offsets = np.array([p.offset for p in planes])
+        N = normals[triples]  # (C, 3, 3)
+        pair_sin = np.stack(
+            [
+                np.linalg.norm(np.cross(N[:, a], N[:, b]), axis=1)
+                for a, b in ((0, 1), (0, 2), (1, 2))
+            ],
+            axis=1,
+        )  # (C, 3)
+        ok = (pair_sin.min(axis=1) >= sin_min) & (np.abs(np.linalg.det(N)) >= sin_min * sin_min)
+        V = np.linalg.solve(N[ok], offsets[triples[ok]][..., None])[..., 0]  # (C', 3)
+        cands = [(v, (int(t[0]), int(t[1]), int(t[2]))) for v, t in zip(V, triples[ok])]
+    # Support: one batched k-d tree query per face over the candidates it takes part in.
+    worst = np.zeros(len(cands))
+    for t in range(n_regions):
+        mine = [i for i, (_, tr) in enumerate(cands) if t in tr]
+        if mine:
+            dist, _ = trees[t].query(np.stack([cands[i][0] for i in mine]))
+            worst[mine] = np.maximum(worst[mine], dist)
+    found = [(v, tr, float(w)) for (v, tr), w in zip(cands, worst) if w <= tolerance]
     merge = tolerance / 2 if merge_distance is None else merge_distance
     kept: list[tuple[FloatArray, tuple[int, int, int], float]] = []
-    for v, triple, worst in sorted(found, key=lambda f: f[2]):
+    for v, triple, w_max in sorted(found, key=lambda f: f[2]):
         if all(np.linalg.norm(v - k[0]) > merge for k in kept):
-            kept.append((v, triple, worst))
+            kept.append((v, triple, w_max))
     log.debug(
         "plane_vertexes: %d planes, %d candidates, %d kept", len(planes), len(found), len(kept)
     )

@@ -125,7 +125,7 @@ def icp_point_to_plane(
     max_distance: float,
     trim: float = 0.9,
     max_iterations: int = 30,
-    tolerance: float = 1e-6,
+    tolerance: float = 1e-5,
 ) -> IcpResult:
     """Point-to-plane ICP of a model surface to scene points (scene -> model correspondences).
 
@@ -330,9 +330,9 @@ def verify_hypotheses(
     icp_distance: float | None = None,
     symmetries: ArrayLike | None = None,
     max_icp: int = 20,
-    icp_iterations: int = 30,
+    icp_iterations: int = 20,
     full_refine: int = 3,
-    max_scene_points: int = 2000,
+    max_scene_points: int = 1500,
     rng: np.random.Generator | None = None,
 ) -> list[VerifiedHypothesis]:
     """Refine (ICP), score and rank hypotheses; report symmetric equivalents once.
