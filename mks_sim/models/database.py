@@ -58,9 +58,10 @@ _LOADERS: dict[str, ModelLoader] = {}
 # kind -> module that registers it when imported (others add their entries).
 MODEL_KIND_MODULES: dict[str, str] = {
     "feature": "mks_sim.models.database",
-    "rotinv": "mks_sim.models.rotinv",
-    "hough3d": "mks_sim.models.hough3d",
+    "rotinv": "mks_sim.models.hough_kinds",
+    "hough3d": "mks_sim.models.hough_kinds",
     "freeform": "mks_sim.models.freeform",
+    "sphere": "mks_sim.models.sphere",
 }
 
 
