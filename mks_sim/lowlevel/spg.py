@@ -106,7 +106,12 @@ class SpatialProximityGraph:
         threshold: float | None = None,
         workers: int = -1,
     ) -> SpatialProximityGraph:
-        """Build the SPG over the points of an existing tree (its metric is used)."""
+        """Build the SPG over the points of an existing tree (its metric is used).
+
+        A :class:`DynamicKDTree` is shared, not copied: the graph's ``insert``/``delete`` update
+        it (and its live ids, ascending, are the graph's rows). A static :class:`KDTree` is
+        left untouched: the first update copies its points into a new dynamic tree.
+        """
         if not isinstance(tree, KDTree | DynamicKDTree):
             raise DataError(
                 f"SpatialProximityGraph.from_tree: expected a KDTree or DynamicKDTree, got {type(tree).__name__}"
