@@ -145,7 +145,10 @@ class SpatialProximityGraph:
     def _points_of(self, ids: NDArray[np.intp]) -> NDArray[np.float64]:
         if isinstance(self._tree, DynamicKDTree):
             return self._tree.points_of(ids)
-        return self._tree.data[ids]
+        data = self._tree.data
+        if len(ids) == len(data) and (len(ids) == 0 or (ids[0] == 0 and ids[-1] == len(ids) - 1)):
+            return data  # all points in order (ids are 0..N-1): the read-only array itself
+        return data[ids]
 
     def _compute_rows(
         self, ids: NDArray[np.intp]
@@ -291,7 +294,7 @@ class SpatialProximityGraph:
 
     @property
     def points(self) -> NDArray[np.float64]:
-        """(N, k) the points, row i = node i."""
+        """(N, k) the points, row i = node i (may be a read-only view: copy before editing)."""
         return self._points_of(self._ids)
 
     @property
