@@ -63,7 +63,7 @@ def make_model(i, ref, kind, threshold):
     return FeatureModel(f"M{i}", "S", tuple(ref), threshold, metric)
 
 
-@settings(max_examples=30)
+@settings(max_examples=25)
 @given(
     specs=st.lists(
         st.tuples(refs, metric_kinds, st.sampled_from([0.0, 0.5, 1.0, 2.0])), min_size=1, max_size=5

@@ -173,7 +173,7 @@ UPDATE_OPS = st.lists(
     ("m", "threshold", "metric"),
     [(3, None, "euclidean"), (2, 1.5, "chebyshev"), ("all", 1.0, "manhattan"), (2, 2.0, "sum_of")],
 )
-@settings(max_examples=20)
+@settings(max_examples=15)
 @given(ops=UPDATE_OPS, seed=st.integers(0, 2**16))
 def test_updates_equal_a_fresh_spg(m, threshold, metric, ops, seed):
     rng = np.random.default_rng(seed)
