@@ -361,6 +361,7 @@ def run_episode(
     frame_sink: FrameSink | None = None,
     frame_size: tuple[int, int] = (320, 240),
     frame_every: int = 3,
+    setup: Callable[[Any], None] | None = None,
 ) -> EpisodeResult:
     """Run one grasp episode from ``seed`` (deterministic).
 
@@ -374,6 +375,8 @@ def run_episode(
         frame_sink: receives (H, W, 3) uint8 frames of the episode (video).
         frame_size: (width, height) of the frames.
         frame_every: control steps between frames.
+        setup: called with the world after the seeded placement, before anything is sensed
+            (e.g. to put the object at a known pose for regression tests).
 
     Raises:
         NotFound: unknown object / task.
@@ -388,6 +391,8 @@ def run_episode(
     task = task or task_for_object(object)
     faults = tuple(faults)
     world = build_episode_world(task, np.random.default_rng(seed))
+    if setup is not None:
+        setup(world)
     rng = np.random.default_rng([seed, 1])
     devices = make_devices(
         world.model, world.data, rng, faults={f: DeviceFaults(failed=True) for f in faults}

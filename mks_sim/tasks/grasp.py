@@ -47,12 +47,15 @@ class ObjectGeometry:
         half_extents_m: (3,) box half sizes (``box``; bounding box for ``part``), metres.
         radius_m: sphere radius (``sphere``), metres.
         features: named graspable features (``part``).
+        min_clearance_m: lowest pinch-point height above the table for this object (the
+            fingertips reach ~1 cm below the pinch point when closed), metres.
     """
 
     kind: str
     half_extents_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     radius_m: float = 0.0
     features: dict[str, GraspFeature] = field(default_factory=dict)
+    min_clearance_m: float = 0.018
 
     @property
     def height_m(self) -> float:
@@ -144,7 +147,7 @@ def plan_grasp(
     geometry: ObjectGeometry,
     preferred_yaw: float = 0.0,
     table_z: float = 0.0,
-    min_clearance_m: float = 0.018,
+    min_clearance_m: float | None = None,
     obstacles_world: np.ndarray | None = None,
 ) -> GraspPlan:
     """The best grasp of :func:`rank_grasps` (same arguments)."""
@@ -158,7 +161,7 @@ def rank_grasps(
     geometry: ObjectGeometry,
     preferred_yaw: float = 0.0,
     table_z: float = 0.0,
-    min_clearance_m: float = 0.018,
+    min_clearance_m: float | None = None,
     obstacles_world: np.ndarray | None = None,
 ) -> list[GraspPlan]:
     """Top-down grasps for an object at ``object_to_world``, best first.
@@ -170,7 +173,7 @@ def rank_grasps(
         preferred_yaw: yaw (rad) the hand would rather keep (its current one).
         table_z: height of the table top, metres.
         min_clearance_m: the pinch point stays at least this high above the table so the
-            fingertips do not dig into it.
+            fingertips do not dig into it (default ``geometry.min_clearance_m``).
         obstacles_world: (N, 3) sensed points of everything but the object and the table
             (world frame, metres), or None. Candidate yaws whose open fingertips would come
             down on such points are avoided; among the free ones the hand turns least.
@@ -211,7 +214,8 @@ def rank_grasps(
         candidates = [(yaw_f + k * math.pi, feat.width_m) for k in range(2)]
     else:  # pragma: no cover - the spec loader rejects other types
         raise SpecError(f"unknown grasp_type {gt!r}")
-    point[2] = max(point[2], table_z + min_clearance_m)
+    clearance = geometry.min_clearance_m if min_clearance_m is None else min_clearance_m
+    point[2] = max(point[2], table_z + clearance)
     return [
         GraspPlan(
             grasp_point_world=(float(point[0]), float(point[1]), float(point[2])),

@@ -27,7 +27,12 @@ GEOMETRIES: dict[str, ObjectGeometry] = {
     "cube_5cm": ObjectGeometry("box", half_extents_m=(_H, _H, _H)),
     "sphere_3cm": ObjectGeometry("sphere", radius_m=names.SPHERE_RADIUS_M),
     "part": ObjectGeometry(
-        "part", half_extents_m=(0.05, 0.03, 0.015), features={"boss": PART_BOSS, "step": PART_STEP}
+        "part",
+        half_extents_m=(0.05, 0.03, 0.015),
+        features={"boss": PART_BOSS, "step": PART_STEP},
+        # The step is 22 mm high: the pads must close low on it (pinch 13 mm above the
+        # table) or they catch its top edge and the part slips out (measured).
+        min_clearance_m=0.012,
     ),
 }
 
