@@ -136,7 +136,7 @@ def test_controller_alone_retries_after_a_bad_estimate() -> None:
     r = run_episode("sphere", 5, localize_fn=localize)
     assert r.retries >= 1
     assert r.success, r.attempts_log
-    assert "failed" in r.attempts_log[0]
+    assert any(line.startswith("attempt 1: failed") for line in r.attempts_log)
 
 
 @pytest.mark.slow

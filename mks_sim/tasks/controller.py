@@ -167,6 +167,7 @@ class ArmHandController:
         self._range = m.jnt_range[[m.joint(j).id for j in names.arm_joints]]
         self._fctrl = m.actuator_ctrlrange[self._fid]
         self.grip = -1.0  # -1 open .. +1 close (fraction of the finger actuator range)
+        self.finger_target: float | None = None  # pre-shape angle (rad) overriding grip
         self.on_frame = on_frame
         self.frame_every = max(1, frame_every)
         self._steps = 0
@@ -224,7 +225,10 @@ class ArmHandController:
             err = self.q_target - d.qpos[self._qadr]
             d.ctrl[self._aid] = np.clip(8.0 * err, -_MAX_VEL, _MAX_VEL)
         lo, hi = self._fctrl[:, 0], self._fctrl[:, 1]
-        d.ctrl[self._fid] = np.where(self.grip >= 0, self.grip * hi, -self.grip * lo)
+        if self.finger_target is not None:
+            d.ctrl[self._fid] = np.clip(10.0 * (self.finger_target - d.qpos[self._fqadr]), lo, hi)
+        else:
+            d.ctrl[self._fid] = np.where(self.grip >= 0, self.grip * hi, -self.grip * lo)
 
     def step(self, n: int = 1) -> None:
         """Advance ``n`` control periods."""
@@ -283,7 +287,13 @@ class ArmHandController:
 
     def open(self, steps: int = 25) -> None:
         """Open the hand fully."""
+        self.finger_target = None
         self.grip = -1.0
+        self.step(steps)
+
+    def preshape(self, q: float, steps: int = 25) -> None:
+        """Hold the fingers at angle ``q`` (rad) and wait ``steps`` control periods."""
+        self.finger_target = float(q)
         self.step(steps)
 
     def close(
@@ -302,6 +312,7 @@ class ArmHandController:
         """
         recentred = 0
         while True:
+            self.finger_target = None
             self.grip = 0.6
             touch = self._touch()
             last = self.finger_qpos()
@@ -326,7 +337,7 @@ class ArmHandController:
             y = self.pinch_yaw() if yaw is None else yaw
             direction = np.array([math.cos(y), math.sin(y), 0.0]) * (1.0 if a else -1.0)
             logger.debug("one-sided contact (finger 1: %s); re-centring", a)
-            self.open(15)
+            self.preshape(float(np.min(self.finger_qpos())) - 0.3, 15)
             self.move_to(self.pinch_pos() + recentre_step_m * direction, y)
 
     def _touch(self) -> np.ndarray:

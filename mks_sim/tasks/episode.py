@@ -300,16 +300,20 @@ class GraspRunner:
         except MksError as exc:
             return False, f"no grasp: {exc}"
         ctl = self.ctl
-        ctl.open(10)
+        reason = "pre-grasp unreachable"
         for plan in plans[:4]:  # the next candidate when the arm cannot reach one
             self.plan = plan
-            if ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.03):
+            ctl.preshape(plan.preshape_q, 10)
+            if not ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.03):
+                self._note(f"pre-grasp at yaw {plan.yaw_rad:.2f} rad unreachable")
+                continue
+            if ctl.move_to(np.asarray(plan.grasp_point_world), plan.yaw_rad, spacing_m=0.01):
                 break
-            self._note(f"pre-grasp at yaw {plan.yaw_rad:.2f} rad unreachable")
+            reason = "descent blocked"
+            self._note(f"descent at yaw {plan.yaw_rad:.2f} rad blocked")
+            ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.02)
         else:
-            return False, "pre-grasp unreachable"
-        if not ctl.move_to(np.asarray(plan.grasp_point_world), plan.yaw_rad, spacing_m=0.01):
-            return False, "descent blocked"
+            return False, reason
         closed = ctl.close(threshold=TOUCH_THRESHOLD_N, yaw=plan.yaw_rad)
         a, b = closed.sides(TOUCH_THRESHOLD_N)
         if not (a and b):

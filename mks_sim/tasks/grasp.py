@@ -75,6 +75,9 @@ class GraspPlan:
         width_m: the object's width between the fingers, metres.
         approach_height_m: pre-grasp height above the grasp point, metres.
         lift_height_m: how far to lift, metres.
+
+    The hand descends pre-shaped to ``width_m`` plus ``PRESHAPE_MARGIN_M``
+    (:attr:`preshape_q`).
     """
 
     grasp_point_world: tuple[float, float, float]
@@ -89,6 +92,11 @@ class GraspPlan:
         return np.asarray(self.grasp_point_world) + np.array([0.0, 0.0, self.approach_height_m])
 
     @property
+    def preshape_q(self) -> float:
+        """Finger angle (rad) to descend with."""
+        return preshape_q(self.width_m)
+
+    @property
     def lifted_world(self) -> np.ndarray:
         """(3,) the pinch point after lifting."""
         return np.asarray(self.grasp_point_world) + np.array([0.0, 0.0, self.lift_height_m])
@@ -99,18 +107,43 @@ def wrap_angle(angle: float) -> float:
     return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
-# Open fingertips in the pinch-site frame (x: closing axis, y: across), metres: finger 1 on
-# +x, fingers 2 and 3 side by side on -x (measured on dm_control's JacoHand, fingers open).
-FINGERTIPS_XY = np.array([[0.066, -0.016], [-0.066, -0.044], [-0.066, 0.014]])
-FINGER_CLEARANCE_M = 0.03
+# Finger joint angle (rad) -> distance between the pad of finger 1 and the pads of fingers
+# 2 + 3 along the closing axis (m), measured on the pads of mks_sim.sim.robot (same q on all
+# three fingers). Descending with the hand pre-shaped to the object's width plus a margin
+# keeps the fingertips off the table and off neighbouring objects.
+FINGER_Q = np.array([0.15, 0.3, 0.45, 0.6, 0.75, 0.9, 1.05, 1.2, 1.35])
+PAD_APERTURE_M = np.array([0.159, 0.143, 0.126, 0.107, 0.087, 0.066, 0.045, 0.024, 0.004])
+PRESHAPE_MARGIN_M = 0.035
+# Fingertips across the closing axis in the pinch-site frame (y, m): finger 1, 2, 3.
+FINGERTIPS_Y = np.array([-0.016, -0.044, 0.014])
+FINGER_CLEARANCE_M = 0.022
 
 
-def finger_collisions(point: np.ndarray, yaw: float, obstacles_world: np.ndarray | None) -> int:
-    """Obstacle points a top-down descent to ``point`` at ``yaw`` would put a fingertip on."""
+def preshape_q(width_m: float, margin_m: float = PRESHAPE_MARGIN_M) -> float:
+    """Finger angle (rad) whose pad aperture is ``width_m + margin_m`` (clamped to the range)."""
+    aperture = float(np.clip(width_m + margin_m, PAD_APERTURE_M[-1], PAD_APERTURE_M[0]))
+    return float(np.interp(aperture, PAD_APERTURE_M[::-1], FINGER_Q[::-1]))
+
+
+def fingertips_xy(aperture_m: float) -> np.ndarray:
+    """(3, 2) fingertip positions in the pinch-site frame for a pad aperture (m)."""
+    half = aperture_m / 2
+    return np.stack([np.array([half, -half, -half]), FINGERTIPS_Y], axis=1)
+
+
+# Kept for plots: the fingertips of the fully open hand.
+FINGERTIPS_XY = fingertips_xy(float(PAD_APERTURE_M[0]))
+
+
+def finger_collisions(
+    point: np.ndarray, yaw: float, obstacles_world: np.ndarray | None, aperture_m: float = 0.16
+) -> int:
+    """Obstacle points a top-down descent to ``point`` at ``yaw`` would put a fingertip on,
+    the hand pre-shaped to ``aperture_m``."""
     if obstacles_world is None or len(obstacles_world) == 0:
         return 0
     c, s = math.cos(yaw), math.sin(yaw)
-    tips = FINGERTIPS_XY @ np.array([[c, s], [-s, c]]) + point[:2]  # (3, 2) world xy
+    tips = fingertips_xy(aperture_m) @ np.array([[c, s], [-s, c]]) + point[:2]  # (3, 2) world xy
     obs = np.asarray(obstacles_world, dtype=float)
     obs = obs[obs[:, 2] < point[2] + 0.10]
     d = np.linalg.norm(obs[None, :, :2] - tips[:, None, :], axis=2)  # (3, N)
@@ -127,7 +160,7 @@ def _ranked(
 
     def key(c: tuple[float, float]) -> tuple[int, float]:
         turn = abs(wrap_angle(c[0] - preferred_yaw))
-        return finger_collisions(point, c[0], obstacles_world), turn
+        return finger_collisions(point, c[0], obstacles_world, c[1] + PRESHAPE_MARGIN_M), turn
 
     return [
         (preferred_yaw + wrap_angle(y - preferred_yaw), w) for y, w in sorted(candidates, key=key)
