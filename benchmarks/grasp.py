@@ -30,6 +30,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--objects", nargs="+", default=["cube", "sphere", "part"])
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=1000)
+    p.add_argument("--env-episodes", type=int, default=0,
+                   help="episodes per object of the scripted policy through mks_sim/Grasp-v0")  # fmt: skip
     p.add_argument("--out", type=Path, default=RESULTS / "grasp.md")
     args = p.parse_args(argv)
     n_failed = args.episodes if args.failed_episodes is None else args.failed_episodes
@@ -49,7 +51,67 @@ def main(argv: list[str] | None = None) -> int:
             ok = sum(e["success"] for e in eps)
             print(f"{obj:7s} {condition:20s} {ok}/{n} in {wall:.0f} s", file=sys.stderr, flush=True)
             _write(args, runs, time.perf_counter() - t0)
+    if args.env_episodes > 0:
+        for obj in args.objects:
+            t = time.perf_counter()
+            eps = _env_episodes(obj, range(args.seed, args.seed + args.env_episodes), args.workers)
+            wall = time.perf_counter() - t
+            runs.append(
+                {
+                    "object": obj,
+                    "condition": "env API, scripted policy",
+                    "episodes": eps,
+                    "wall_s": wall,
+                }
+            )
+            ok = sum(e["success"] for e in eps)
+            print(
+                f"{obj:7s} env API              {ok}/{len(eps)} in {wall:.0f} s",
+                file=sys.stderr,
+                flush=True,
+            )
+            _write(args, runs, time.perf_counter() - t0)
     return 0
+
+
+def _env_episode(job: tuple[str, int]) -> dict:
+    """The scripted grasp through ``mks_sim/Grasp-v0`` (sensor-based localization)."""
+    import gymnasium as gym
+
+    import mks_sim  # noqa: F401
+    from mks_sim.envs.scripted import ScriptedGraspPolicy
+
+    obj, seed = job
+    t = time.perf_counter()
+    env = gym.make("mks_sim/Grasp-v0", object=obj, max_episode_steps=150)
+    try:
+        obs, info = env.reset(seed=seed)
+        policy = ScriptedGraspPolicy(env.unwrapped)
+        terminated = truncated = False
+        while not (terminated or truncated):
+            obs, _, terminated, truncated, info = env.step(policy(obs))
+    finally:
+        env.close()
+    err = info["localization_error"]
+    return {
+        "seed": seed,
+        "success": bool(info["success"]),
+        "retries": 0,
+        "error": {k: (None if v != v else v) for k, v in err.items()},
+        "time_s": time.perf_counter() - t,
+        "failure": "" if info["success"] else f"ended in phase {policy.phase}",
+    }
+
+
+def _env_episodes(obj: str, seeds: range, workers: int) -> list[dict]:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    jobs = [(obj, s) for s in seeds]
+    with ProcessPoolExecutor(
+        max_workers=workers, mp_context=multiprocessing.get_context("spawn")
+    ) as pool:
+        return list(pool.map(_env_episode, jobs))
 
 
 def _write(args: argparse.Namespace, runs: list[dict], total_s: float) -> None:

@@ -158,3 +158,38 @@ def test_unknown_object_and_device() -> None:
         run_episode("pyramid", 0, localize_fn=_truth_localize)
     with pytest.raises(SE, match=r"unknown device 'laser'"):
         run_episode("cube", 0, faults=("laser",), localize_fn=_truth_localize)
+
+
+def test_preshape_opens_wider_for_wider_objects() -> None:
+    from mks_sim.tasks.grasp import FINGER_Q, PAD_APERTURE_M, preshape_q
+
+    widths = np.linspace(0.0, 0.2, 21)
+    q = [preshape_q(w) for w in widths]
+    assert all(a >= b for a, b in zip(q, q[1:]))  # wider object -> more open (smaller q)
+    assert min(q) == pytest.approx(FINGER_Q[0]) and max(q) <= FINGER_Q[-1]
+    # The aperture at the pre-shape angle is the width plus the margin (table interpolation).
+    assert np.interp(preshape_q(0.05), FINGER_Q, PAD_APERTURE_M) == pytest.approx(0.085, abs=1e-3)
+
+
+@pytest.mark.slow
+def test_cli_grasp_json_with_sensor_localization(capsys: pytest.CaptureFixture[str]) -> None:
+    """The shipped command end to end (real sensor-based localization), JSON on stdout."""
+    import json
+
+    from mks_sim.cli import main
+
+    assert main(["grasp", "--object", "sphere", "--episodes", "1", "--seed", "2", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    (ep,) = doc["episodes"]
+    assert set(ep) >= {"seed", "success", "retries", "error", "time_s"}
+    assert set(ep["error"]) == {"position_mm", "rotation_deg"}
+    assert ep["seed"] == 2 and ep["success"] is True
+    assert ep["error"]["position_mm"] < 5.0
+    assert doc["success_rate"] == 1.0
+
+
+def test_cli_grasp_rejects_bad_counts(capsys: pytest.CaptureFixture[str]) -> None:
+    from mks_sim.cli import main
+
+    assert main(["grasp", "--object", "cube", "--episodes", "0"]) == 2
+    assert "--episodes: expected >= 1, got 0" in capsys.readouterr().err

@@ -251,6 +251,8 @@ class GraspEnv(gym.Env):
     def _sense(self) -> None:
         fn = self._localize_override or sensor_localize_fn(self._devices)
         self._estimate = fn(self.world, self.object)
+        # Evaluation only: the estimate's error at the time it was sensed.
+        self._loc_error = localization_error(self.world, self.object, self._estimate)
 
     def _clearance(self) -> float:
         z = lowest_point_z(self.world.model, self.world.data, self.object)
@@ -330,7 +332,7 @@ class GraspEnv(gym.Env):
         return out, np.array([len(pts)])
 
     def _info(self, success: bool = False) -> dict[str, Any]:
-        err = localization_error(self.world, self.object, self._estimate)
+        err = self._loc_error
         return {
             "success": bool(success),
             "localization_error": {
