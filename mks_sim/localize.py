@@ -25,7 +25,7 @@ import itertools
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
@@ -62,6 +62,11 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
+
+#: Part of a model's surface one view is assumed to show at least (a cube seen obliquely
+#: shows ~1/2, the industrial part from above ~1/3); a hypothesis explaining fewer scene
+#: points than this share of the model's area at the scene's spacing has its score scaled down.
+VISIBLE_FRACTION = 0.2
 
 
 @runtime_checkable
@@ -583,7 +588,10 @@ class Localization:
     Attributes:
         found: the best hypothesis passed ``min_score``.
         hypotheses: verified hypotheses, best first (``matrix`` model -> scene, ``votes``,
-            ``score`` in [0, 1], ``rmse`` in scene units).
+            ``score`` in [0, 1] = inlier fraction x residual factor (see
+            :func:`~mks_sim.models.refine.score_pose`) x coverage (explained points over
+            :data:`VISIBLE_FRACTION` of the model's area at the scene spacing, capped at 1),
+            ``rmse`` in scene units).
         equivalents: per hypothesis, (E, 4, 4) poses equivalent to it under the model's
             symmetries that the matcher also proposed.
         inlier_fractions: per hypothesis, the fraction of its segment's points explained.
@@ -847,6 +855,9 @@ def localize_cloud(
     t_refine = 0.0
     results: list[tuple[PoseHypothesis, FloatArray, float, int]] = []
     syms = loc_model.symmetries()
+    # Uniform random samples: median nearest-neighbour distance = 0.47 / sqrt(density).
+    model_area = len(surface.points) * (surface.spacing / 0.47) ** 2
+    expected_points = VISIBLE_FRACTION * model_area / max(spacing, 1e-12) ** 2
     for si, (seg_pts, seg) in enumerate(seg_data):
         rep = segments[si]
         noise = float(np.median([p.plane.rmse for p in rep.planes])) if rep.planes else 0.0
@@ -891,7 +902,13 @@ def localize_cloud(
                 rng=rng,
             )
             t_refine += time.perf_counter() - t
-        results.extend((v.hypothesis, v.equivalents, v.inlier_fraction, si) for v in verified)
+        # Coverage: a pose must explain about as many points as one view of the model shows,
+        # or a small segment (clutter, a fragment) that a piece of the model fits would win.
+        for v in verified:
+            explained = v.inlier_fraction * len(seg_pts)
+            coverage = min(1.0, explained / expected_points)
+            h = replace(v.hypothesis, score=v.hypothesis.score * coverage)
+            results.append((h, v.equivalents, v.inlier_fraction, si))
     results.sort(key=lambda r: (-r[0].score, r[0].rmse))
     results = results[:max_hypotheses]
     timing["matching"] = t_match
