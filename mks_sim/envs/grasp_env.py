@@ -262,7 +262,7 @@ class GraspEnv(gym.Env):
         ctl = self._ctl
         assert ctl is not None
         est = self._estimate
-        touch = np.nan_to_num(ctl._touch(), nan=-1.0)
+        touch = np.nan_to_num(ctl.touch(), nan=-1.0)
         d = self.world.data
         qvel = np.array([d.joint(j).qvel[0] for j in self._names.arm_joints])
         obs: dict[str, Any] = {

@@ -240,6 +240,11 @@ class ArmHandController:
                 self.on_frame()
 
     @property
+    def control_dt(self) -> float:
+        """Control period, seconds."""
+        return float(self.n_sub * self._m.opt.timestep)
+
+    @property
     def time(self) -> float:
         """Simulated time, seconds."""
         return float(self._d.time)
@@ -314,17 +319,17 @@ class ArmHandController:
         while True:
             self.finger_target = None
             self.grip = 0.6
-            touch = self._touch()
+            touch = self.touch()
             last = self.finger_qpos()
             for k in range(max_steps):
                 self.step()
-                touch = self._touch()
+                touch = self.touch()
                 res = CloseResult(touch, self.finger_qpos(), recentred)
                 a, b = res.sides(threshold)
                 if a and b and k > 3:
                     self.grip = 1.0
                     self.step(15)
-                    return CloseResult(self._touch(), self.finger_qpos(), recentred)
+                    return CloseResult(self.touch(), self.finger_qpos(), recentred)
                 q = self.finger_qpos()
                 if k > 8 and np.max(np.abs(q - last)) < 1e-4:
                     break
@@ -340,7 +345,8 @@ class ArmHandController:
             self.preshape(float(np.min(self.finger_qpos())) - 0.3, 15)
             self.move_to(self.pinch_pos() + recentre_step_m * direction, y)
 
-    def _touch(self) -> np.ndarray:
+    def touch(self) -> np.ndarray:
+        """(3,) fingertip pad readings (N) of fingers 1, 2, 3; nan for a failed pad."""
         t = np.asarray(self.read_touch(), dtype=float).reshape(-1)
         if t.size != 3:
             t = np.resize(t, 3)
@@ -348,4 +354,4 @@ class ArmHandController:
 
     def hold(self, seconds: float) -> None:
         """Keep the current targets for ``seconds`` of simulated time."""
-        self.step(max(1, int(round(seconds / (self.n_sub * self._m.opt.timestep)))))
+        self.step(max(1, int(round(seconds / self.control_dt))))

@@ -320,12 +320,12 @@ class GraspRunner:
             return False, f"no two-sided contact (finger 1: {a}, fingers 2/3: {b})"
         z0 = float(est[2, 3])
         ctl.move_to(plan.lifted_world, plan.yaw_rad, spacing_m=0.01)
-        steps = max(1, int(round(HOLD_S / (ctl.n_sub * ctl._m.opt.timestep))))
+        steps = max(1, int(round(HOLD_S / ctl.control_dt)))
         for _ in range(steps):
             ctl.step()
             if self.monitor is not None:
                 self.monitor.sample()
-        t = ctl._touch()
+        t = ctl.touch()
         a, b = (
             np.nan_to_num(t, nan=-1.0)[0] > TOUCH_THRESHOLD_N,
             np.nanmax(np.nan_to_num(t[1:], nan=-1.0)) > TOUCH_THRESHOLD_N,
