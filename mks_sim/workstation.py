@@ -79,6 +79,9 @@ _BUILTIN_SENSORS: dict[str, str] = {
     "part": "Control_Point_Detector",
 }
 POINTS_SENSOR = "Range_Points"
+# A candidate explaining at least this many sensed points (within the inlier distance) makes
+# the support-face hypotheses unnecessary (saves ~1-3 s); below it they compete as well.
+SUPPORT_SKIP_EXPLAINED = 1000
 SPHERE_SENSOR = "Sphere_Detector"
 # Spheres of this radius range found by Sphere_Detector are set aside before polyhedral
 # matching (the workstation's spheres are 3 cm; larger fits are curved-region artefacts).
@@ -414,23 +417,27 @@ def _localize_polyhedral(
     extra["inlier_distance_m"] = d
     extra["checks"] = [checks[i] for i in order[:5]]
     good = [candidates[i] for i in order if checks[i]["ok"]]
-    if not good and table is not None:
-        # Fallback: the object rests on the table. Hypotheses from every support face of the
-        # model put on the sensed table plane, yaw from the footprint's principal axes,
-        # refined by ICP and checked like the others.
+    if table is not None and _wants_support(good, checks, order):
+        # The object rests on the table: hypotheses from every support face of the model put
+        # on the sensed table plane (yaw from the footprint's principal axes and 8 fixed
+        # yaws), refined by ICP and checked like the others; all candidates compete.
         t = time.perf_counter()
         support = _support_hypotheses(model, objects, table, d, rng)
         checks2 = [
             _consistency(h.matrix, surface_pts, surface_nrm, points, table, d) for h in support
         ]
-        order2 = sorted(
-            range(len(support)),
-            key=lambda i: (not checks2[i]["ok"], -checks2[i]["explained"], -support[i].score),
+        candidates += support
+        checks += checks2
+        order = sorted(
+            range(len(checks)),
+            key=lambda i: (not checks[i]["ok"], -checks[i]["explained"], -candidates[i].score),
         )
-        good = [support[i] for i in order2 if checks2[i]["ok"]]
-        extra["support_fallback"] = {"candidates": len(support), "ok": len(good)}
-        if not extra["checks"] or (order2 and checks2[order2[0]]["ok"]):
-            extra["checks"] = [checks2[i] for i in order2[:5]]
+        good = [candidates[i] for i in order if checks[i]["ok"]]
+        extra["checks"] = [checks[i] for i in order[:5]]
+        extra["support_fallback"] = {
+            "candidates": len(support),
+            "ok": int(sum(c["ok"] for c in checks2)),
+        }
         timing["support_fallback"] = time.perf_counter() - t
     if good and detected is not None and len(detected):
         T = np.asarray(good[0].matrix)
@@ -440,6 +447,17 @@ def _localize_polyhedral(
             dist = cKDTree(detected).query(mv)[0]
             extra["feature_support"] = int((dist < 4 * d).sum())
     return good, extra
+
+
+def _wants_support(
+    good: list[PoseHypothesis], checks: list[dict[str, Any]], order: list[int]
+) -> bool:
+    """Run the support-face hypotheses unless a candidate passed with a well-explained scene
+    (>= 1000 points within the inlier distance: most of a 5 cm object's visible surface)."""
+    del good
+    if not order or not checks[order[0]]["ok"]:
+        return True
+    return bool(checks[order[0]]["explained"] < SUPPORT_SKIP_EXPLAINED)
 
 
 def _refine_near(
@@ -527,7 +545,7 @@ def _support_hypotheses(
             rotated = pts @ R0.T
             model_angle = _principal_angle(rotated[:, :2])
             yaws = [seg_angle - model_angle + k * np.pi / 2 for k in range(4)]
-            yaws += [k * np.pi / 6 for k in range(12)]  # the footprint axis may mislead
+            yaws += [k * np.pi / 4 for k in range(8)]  # the footprint axis may mislead
             for yaw in yaws:
                 Rz = _rotation_about(up, yaw)
                 R = Rz @ R0
@@ -548,7 +566,7 @@ def _support_hypotheses(
             icp_distance=max(4 * d, 0.15 * surface.size),
             symmetries=model.symmetries(),
             max_icp=len(starts),
-            full_refine=8,
+            full_refine=6,
             rng=rng,
         )
         out.extend(v.hypothesis for v in verified)

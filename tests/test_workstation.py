@@ -35,9 +35,7 @@ def _errors(obj: str, T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, flo
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    ("obj", "seed"), [("cube", 1), ("cube", 7), ("sphere", 2), ("part", 3), ("part", 8)]
-)
+@pytest.mark.parametrize(("obj", "seed"), [("cube", 1), ("sphere", 2), ("part", 3)])
 def test_localizes_within_tolerance_of_ground_truth(obj: str, seed: int) -> None:
     result, T_true = _localize(obj, seed)
     assert result.found and result.object_to_world is not None
@@ -51,7 +49,7 @@ def test_localizes_within_tolerance_of_ground_truth(obj: str, seed: int) -> None
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("obj", "seed"), [("cube", 4), ("sphere", 3), ("part", 2)])
+@pytest.mark.parametrize(("obj", "seed"), [("sphere", 3), ("part", 2)])
 def test_range_finder_failed_stereo_serves_range_points(obj: str, seed: int) -> None:
     result, T_true = _localize(obj, seed, fail=("range_finder",))
     assert result.provenance["Range_Points"] == "Stereo_Points"
