@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mks_sim.errors import DataError
+from mks_sim.geometry.points import as_points
 
 __all__ = [
     "apply",
@@ -29,17 +30,6 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-
-
-def _as_points(points: ArrayLike, name: str) -> FloatArray:
-    arr = np.asarray(points, dtype=np.float64)
-    if arr.ndim == 1 and arr.shape[0] == 3:
-        arr = arr[None, :]
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise DataError(f"{name}: expected an (N, 3) array of points, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise DataError(f"{name}: expected finite coordinates, got NaN or inf")
-    return arr
 
 
 def _as_matrix(T: ArrayLike, name: str) -> FloatArray:
@@ -86,7 +76,7 @@ def apply(T: ArrayLike, points: ArrayLike) -> FloatArray:
     M = _as_matrix(T, "apply: T")
     arr = np.asarray(points, dtype=np.float64)
     single = arr.ndim == 1
-    pts = _as_points(arr, "apply: points")
+    pts = as_points(arr, "apply: points", allow_single=True)
     out = pts @ M[:3, :3].T + M[:3, 3]
     return out[0] if single else out
 
@@ -143,8 +133,8 @@ def rigid_fit(
     Raises:
         DataError: shapes differ, fewer than one pair, NaN, or bad weights.
     """
-    P = _as_points(src, "rigid_fit: src")
-    Q = _as_points(dst, "rigid_fit: dst")
+    P = as_points(src, "rigid_fit: src", allow_single=True)
+    Q = as_points(dst, "rigid_fit: dst", allow_single=True)
     if P.shape != Q.shape:
         raise DataError(f"rigid_fit: src and dst must pair up, got {P.shape} and {Q.shape}")
     n = P.shape[0]

@@ -18,7 +18,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import sparse
 
-from mks_sim.errors import DataError
+from mks_sim.geometry.points import as_points
+from mks_sim.lowlevel.spg import SpatialProximityGraph
 
 __all__ = [
     "DEFAULT_CURVATURE_THRESHOLD",
@@ -64,52 +65,12 @@ class SurfaceNormals:
     curvature: FloatArray
 
 
-def as_points(points: ArrayLike, where: str, min_points: int = 1) -> FloatArray:
-    """Validate an (N, 3) finite float array; raise :class:`DataError` otherwise."""
-    try:
-        arr = np.asarray(points, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise DataError(f"{where}: expected (N, 3) numbers, got {type(points).__name__}") from exc
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise DataError(f"{where}: expected shape (N, 3), got {arr.shape}")
-    if arr.shape[0] < min_points:
-        raise DataError(f"{where}: expected at least {min_points} points, got {arr.shape[0]}")
-    if not np.all(np.isfinite(arr)):
-        bad = int(np.count_nonzero(~np.all(np.isfinite(arr), axis=1)))
-        raise DataError(f"{where}: {bad} rows contain NaN or inf; drop them first")
-    return arr
-
-
-class _KnnGraph:
-    """Minimal SPG stand-in (m nearest neighbours, optional distance threshold) on cKDTree."""
-
-    def __init__(self, points: FloatArray, m: int, threshold: float | None) -> None:
-        from scipy.spatial import cKDTree
-
-        n = len(points)
-        k = min(m + 1, n)
-        tree = cKDTree(points, balanced_tree=True)
-        dist, idx = tree.query(points, k=k, distance_upper_bound=threshold or np.inf)
-        dist, idx = np.atleast_2d(dist)[:, 1:], np.atleast_2d(idx)[:, 1:]
-        ok = idx < n
-        rows = np.repeat(np.arange(n), idx.shape[1])[ok.ravel()]
-        self.adjacency = sparse.csr_array(
-            (dist[ok], (rows, idx[ok])), shape=(n, n), dtype=np.float64
-        )
-
-
 def build_graph(points: FloatArray, m: int = 12, threshold: float | None = None) -> GraphLike:
     """The spatial proximity graph of ``points`` (m nearest neighbours, optional threshold).
 
-    Uses :class:`mks_sim.lowlevel.spg.SpatialProximityGraph`; a cKDTree k-NN graph stands in
-    only if that module cannot be imported.
+    Uses :class:`mks_sim.lowlevel.spg.SpatialProximityGraph`.
     """
-    try:
-        from mks_sim.lowlevel.spg import SpatialProximityGraph
-    except ImportError:  # pragma: no cover - the SPG room is part of the package
-        log.debug("mks_sim.lowlevel.spg unavailable; using a cKDTree k-NN graph")
-        return _KnnGraph(points, m, threshold)
-    return SpatialProximityGraph(points, m=m, threshold=threshold)  # type: ignore[no-any-return]
+    return SpatialProximityGraph(points, m=m, threshold=threshold)
 
 
 def neighbour_table(

@@ -27,6 +27,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError, SpecError
+from mks_sim.geometry.points import as_points
 from mks_sim.geometry.transforms import make_transform
 from mks_sim.models.pose import PoseHypothesis
 
@@ -36,17 +37,6 @@ log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 _CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=np.int64)
-
-
-def _points(points: ArrayLike, name: str, min_rows: int = 1) -> FloatArray:
-    arr = np.asarray(points, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise DataError(f"{name}: expected an (N, 3) array of points, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise DataError(f"{name}: expected finite coordinates, got NaN or inf")
-    if arr.shape[0] < min_rows:
-        raise DataError(f"{name}: expected at least {min_rows} points, got {arr.shape[0]}")
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,7 +77,7 @@ def accumulate_sparse(
     Returns:
         The sparse accumulator.
     """
-    V = _points(votes, "accumulate_sparse: votes")
+    V = as_points(votes, "accumulate_sparse: votes")
     ids = np.asarray(voters, dtype=np.int64).reshape(-1)
     if ids.shape != (len(V),):
         raise DataError(f"accumulate_sparse: expected {len(V)} voter ids, got {ids.shape}")
@@ -127,7 +117,7 @@ class TranslationHough3D:
         min_votes: int | None = None,
         symmetries: ArrayLike | None = None,
     ) -> None:
-        P = _points(points, "TranslationHough3D: model points")
+        P = as_points(points, "TranslationHough3D: model points")
         self.points: FloatArray = P
         self.name = name
         self.description = ""
@@ -153,7 +143,7 @@ class TranslationHough3D:
 
     def accumulate(self, points: ArrayLike) -> SparseAccumulator:
         """Vote: every detected vertex ``e`` for ``e + d`` for every displacement ``d``."""
-        D = _points(points, "TranslationHough3D: detected points", min_rows=1)
+        D = as_points(points, "TranslationHough3D: detected points", min_points=1)
         votes = (D[:, None, :] + self.displacements[None]).reshape(-1, 3)  # (m * n, 3)
         voters = np.repeat(np.arange(len(D)), len(self.displacements))
         return accumulate_sparse(votes, voters, self.cell)
@@ -169,7 +159,7 @@ class TranslationHough3D:
             maximum, ``reference_point`` the refined P0', ``correspondences`` (detected,
             model) pairs, ``rmse`` of the pairs about the translation.
         """
-        D = _points(points, "TranslationHough3D: detected points", min_rows=1)
+        D = as_points(points, "TranslationHough3D: detected points", min_points=1)
         acc = self.accumulate(D)
         min_votes = self.min_votes if self.min_votes is not None else min(2, len(D))
         strong = acc.counts >= min_votes

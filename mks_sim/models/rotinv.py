@@ -38,6 +38,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError, SpecError
+from mks_sim.geometry.points import as_points
 from mks_sim.geometry.transforms import apply, rigid_fit
 from mks_sim.models.pose import PoseHypothesis
 
@@ -55,17 +56,6 @@ log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 
-def _points(points: ArrayLike, name: str, min_rows: int = 1) -> FloatArray:
-    arr = np.asarray(points, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise DataError(f"{name}: expected an (N, 3) array of points, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise DataError(f"{name}: expected finite coordinates, got NaN or inf")
-    if arr.shape[0] < min_rows:
-        raise DataError(f"{name}: expected at least {min_rows} points, got {arr.shape[0]}")
-    return arr
-
-
 def dedupe_points(points: ArrayLike, eps: float) -> tuple[FloatArray, NDArray[np.int64]]:
     """Merge points closer than ``eps`` (connected components), keeping first-seen order.
 
@@ -76,7 +66,7 @@ def dedupe_points(points: ArrayLike, eps: float) -> tuple[FloatArray, NDArray[np
     Returns:
         ``(unique (U, 3) — the mean of each group, counts (U,) int)``.
     """
-    P = _points(points, "dedupe_points: points")
+    P = as_points(points, "dedupe_points: points")
     if len(P) == 0:
         return P, np.zeros(0, dtype=np.int64)
     pairs = cKDTree(P).query_pairs(r=max(eps, 0.0), output_type="ndarray")
@@ -105,7 +95,7 @@ def radius_gaps(points: ArrayLike, reference: ArrayLike) -> tuple[float, float]:
         ``(min_gap, relative_gap)``: the smallest difference between two sorted radii (points'
         units; 0 for fewer than two points is ``inf``) and that gap over the largest radius.
     """
-    P = _points(points, "radius_gaps: points")
+    P = as_points(points, "radius_gaps: points")
     r = np.sort(np.linalg.norm(P - np.asarray(reference, dtype=np.float64), axis=1))
     if len(r) < 2:
         return float("inf"), float("inf")
@@ -128,7 +118,7 @@ def choose_reference(points: ArrayLike, grid: int = 11, refine: int = 3) -> Floa
     Returns:
         (3,) reference point.
     """
-    P = _points(points, "choose_reference: points")
+    P = as_points(points, "choose_reference: points")
     lo, hi = P.min(axis=0), P.max(axis=0)
     span = np.maximum(hi - lo, 1e-9 * max(1.0, float(np.abs(P).max())))
     lo, hi = lo - 0.25 * span, hi + 0.25 * span
@@ -278,7 +268,7 @@ class RotationInvariantHough:
         max_rmse: float | None = None,
         min_votes: int | None = None,
     ) -> None:
-        P = _points(points, "RotationInvariantHough: model points", min_rows=3)
+        P = as_points(points, "RotationInvariantHough: model points", min_points=3)
         uniq, counts = dedupe_points(P, 0.0)
         if len(uniq) < len(P):
             log.warning("model %r: %d repeated model points merged", name, len(P) - len(uniq))
@@ -347,7 +337,7 @@ class RotationInvariantHough:
         Raises:
             DataError: wrong shape, NaN, or fewer than 3 distinct detected points.
         """
-        D_in = _points(points, "RotationInvariantHough.detect: detected points")
+        D_in = as_points(points, "RotationInvariantHough.detect: detected points")
         uniq, counts = dedupe_points(D_in, self.tolerance / 4)
         first = self._first_index(D_in, uniq)
         if np.any(counts > 1):
