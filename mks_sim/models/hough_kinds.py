@@ -84,44 +84,49 @@ def _parse_common(entry: Mapping[str, Any], where: str) -> dict[str, Any]:
     }
 
 
-def load_rotinv_model(entry: Mapping[str, Any], where: str) -> Any:
-    """Loader of ``kind = "rotinv"`` -> :class:`~mks_sim.models.rotinv.RotationInvariantHough`."""
-    from mks_sim.models.rotinv import RotationInvariantHough
-
-    args = _parse_common(entry, where)
+def _build(make: Any, entry: Mapping[str, Any], where: str) -> Any:
+    """Build a Hough model with ``make(args)``; its errors become SpecErrors naming the entry."""
     try:
-        model = RotationInvariantHough(
-            args["points"],
-            reference=args["reference"],
-            tolerance=args["tolerance"],
-            symmetries=args["symmetries"],
-            name=args["name"],
-        )
+        model = make(_parse_common(entry, where))
     except MksError as exc:
         raise SpecError(f"{where}: {exc}") from exc
     model.description = str(entry.get("description", ""))
     model.unit = str(entry.get("unit", ""))
     return model
+
+
+def load_rotinv_model(entry: Mapping[str, Any], where: str) -> Any:
+    """Loader of ``kind = "rotinv"`` -> :class:`~mks_sim.models.rotinv.RotationInvariantHough`."""
+    from mks_sim.models.rotinv import RotationInvariantHough
+
+    return _build(
+        lambda a: RotationInvariantHough(
+            a["points"],
+            reference=a["reference"],
+            tolerance=a["tolerance"],
+            symmetries=a["symmetries"],
+            name=a["name"],
+        ),
+        entry,
+        where,
+    )
 
 
 def load_hough3d_model(entry: Mapping[str, Any], where: str) -> Any:
     """Loader of ``kind = "hough3d"`` -> :class:`~mks_sim.models.hough3d.TranslationHough3D`."""
     from mks_sim.models.hough3d import TranslationHough3D
 
-    args = _parse_common(entry, where)
-    try:
-        model = TranslationHough3D(
-            args["points"],
-            reference=args["reference"],
-            cell=args["tolerance"],
-            name=args["name"],
-            symmetries=args["symmetries"],
-        )
-    except MksError as exc:
-        raise SpecError(f"{where}: {exc}") from exc
-    model.description = str(entry.get("description", ""))
-    model.unit = str(entry.get("unit", ""))
-    return model
+    return _build(
+        lambda a: TranslationHough3D(
+            a["points"],
+            reference=a["reference"],
+            cell=a["tolerance"],
+            name=a["name"],
+            symmetries=a["symmetries"],
+        ),
+        entry,
+        where,
+    )
 
 
 register_model_kind("rotinv", load_rotinv_model)
