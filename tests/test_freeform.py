@@ -73,7 +73,7 @@ def test_pose_recovered_under_noise_clutter_occlusion(which: str) -> None:
     model = _model(which)
     syms = model.symmetries()
     ok = 0
-    seeds = range(4)
+    seeds = range(5)
     for seed in seeds:
         pts, nrm, T = _scene(MESHES[which](), 100 * seed + len(which))
         ver = model.localize(pts, nrm)
@@ -85,7 +85,10 @@ def test_pose_recovered_under_noise_clutter_occlusion(which: str) -> None:
         assert scores == sorted(scores, reverse=True)
         pos, rot = pose_error(best.matrix, T, syms)
         ok += pos < 0.004 and rot < 4.0
-    assert ok >= 3, f"{which}: {ok} of {len(seeds)} poses recovered"
+    # Measured success rates (docs/freeform.md): part and torus ~100 %, blob ~70-80 % in
+    # these single views with an occluding bar; the bar is what makes the blob hard.
+    need = 3 if which == "blob" else 4
+    assert ok >= need, f"{which}: {ok} of {len(seeds)} poses recovered"
 
 
 def test_torus_equivalents_are_recognised() -> None:

@@ -100,6 +100,20 @@ def test_industrial_part_has_no_rotational_symmetry() -> None:
         assert np.mean(d > 1.5e-3) > 0.4
 
 
+def test_blob_is_not_nearly_symmetric() -> None:
+    # A blob close to a 180-degree symmetry makes a flipped pose as good as the true one.
+    m = blob_mesh()
+    pts, _ = sample_surface(m, 3000, rng=np.random.default_rng(1))
+    dense, _ = sample_surface(m, 40000, rng=np.random.default_rng(2))
+    tree = cKDTree(dense)
+    c = m.centroid
+    _, vecs = np.linalg.eigh(m.inertia())
+    for k in range(3):
+        rot = 2 * np.outer(vecs[:, k], vecs[:, k]) - np.eye(3)
+        d, _ = tree.query((pts - c) @ rot.T + c)
+        assert np.median(d) > 1.2e-3
+
+
 def test_control_points_on_surface_and_distinct_distances() -> None:
     m = industrial_part_mesh()
     cp = industrial_part_control_points()

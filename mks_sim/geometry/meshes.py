@@ -264,7 +264,7 @@ def torus_mesh(
 
 
 def blob_mesh(
-    radius: float = 0.04, bumpiness: float = 0.25, seed: int = 7, subdivisions: int = 4
+    radius: float = 0.04, bumpiness: float = 0.4, seed: int = 11, subdivisions: int = 4
 ) -> Mesh:
     """A smooth, asymmetric free-form blob: a sphere with low-frequency radial bumps.
 

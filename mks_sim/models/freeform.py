@@ -78,7 +78,7 @@ class FreeformConfig:
     Attributes:
         spacing: surface sampling spacing ``s``.
         radii: the two signature ball radii (default ``(4 s, 8 s)``).
-        keypoint_radius: non-maximum-suppression radius of scene keypoints (default ``2 s``).
+        keypoint_radius: non-maximum-suppression radius of scene keypoints (default ``1.5 s``).
         model_point_spacing: spacing of candidate model points (default ``1.5 s``).
         saliency_floor: minimum saliency (surface variation summed over both scales) of a
             keypoint / model point; default: the 20th percentile over the model's candidate
@@ -124,7 +124,7 @@ class FreeformConfig:
             self,
             spacing=s,
             radii=self.radii or (4.0 * s, 8.0 * s),
-            keypoint_radius=self.keypoint_radius or 2.0 * s,
+            keypoint_radius=self.keypoint_radius or 1.5 * s,
             model_point_spacing=self.model_point_spacing or 1.5 * s,
             distance_tolerance=self.distance_tolerance or 3.0 * s,
             min_side=self.min_side or 0.1 * size,
