@@ -238,3 +238,18 @@ def test_ascii_stl_and_bad_meshes(tmp_path: Path) -> None:
     write_ply(p, PTS)
     with pytest.raises(DataError, match=r"pts\.ply: PLY has no face element"):
         read_mesh(p)
+
+
+def test_check_scale_flags_unit_mixups(caplog) -> None:
+    from mks_sim.io.units import check_scale
+
+    model = industrial_part_mesh().vertices  # metres, ~0.12 m
+    scene = model + 0.3  # same units
+    assert check_scale(model, np.vstack([scene, [[0.0, 0.0, 0.0]]])) is None
+    with caplog.at_level(logging.WARNING):
+        msg = check_scale(model * 1000.0, scene)  # model in mm, scene in m
+    assert msg is not None and "--scale 0.001" in msg
+    assert "are the units the same" in caplog.text
+    assert check_scale(model * 1000.0, scene, scale=0.001) is None
+    msg = check_scale(model, scene * 1000.0)  # scene in mm
+    assert msg is not None and "--scale 1000" in msg

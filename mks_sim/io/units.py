@@ -1,0 +1,61 @@
+"""Unit sanity check between a model and a scene (metres vs millimetres mix-ups).
+
+A model built in millimetres matched against a scan in metres finds nothing and says nothing;
+:func:`check_scale` notices the mismatch from the sizes alone and suggests the ``--scale``.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+__all__ = ["check_scale", "extent"]
+
+log = logging.getLogger(__name__)
+
+_FACTORS = (1e-3, 1e-2, 2.54e-2, 1.0, 25.4, 1e2, 1e3)  # mm, cm, inch <-> m
+
+
+def extent(points: ArrayLike) -> float:
+    """Robust size of a point set: the diagonal of its 2nd-98th percentile box (NaN-safe)."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    p = p[np.all(np.isfinite(p), axis=1)]
+    if len(p) < 2:
+        return 0.0
+    lo, hi = np.percentile(p, [2, 98], axis=0)
+    return float(np.linalg.norm(hi - lo))
+
+
+def check_scale(
+    model_points: ArrayLike, scene_points: ArrayLike, scale: float = 1.0, *, ratio: float = 10.0
+) -> str | None:
+    """A warning message when the scaled model and the scene differ in size by > ``ratio``.
+
+    The scene may hold clutter and a table, so only a model much larger than the whole scene,
+    or much smaller than a ``1 / ratio**2`` fraction of it, is flagged.
+
+    Args:
+        model_points: (M, 3) model surface points or vertices, model units.
+        scene_points: (N, 3) scene points, scene units (NaN allowed).
+        scale: the factor the caller will apply to the model (model units -> scene units).
+        ratio: tolerated size ratio.
+
+    Returns:
+        None when plausible, else a message naming both sizes and the suggested scale (also
+        logged as a warning).
+    """
+    m = extent(model_points) * scale
+    s = extent(scene_points)
+    if m <= 0 or s <= 0:
+        return None
+    if m <= s * ratio and m * ratio**2 >= s:
+        return None
+    best = min(_FACTORS, key=lambda f: abs(np.log(m * f / (0.5 * s))))
+    msg = (
+        f"model size {m:.4g} (after scale {scale:g}) vs scene size {s:.4g}: they differ by "
+        f"{max(m / s, s / m):.0f}x - are the units the same? try --scale {scale * best:g}"
+    )
+    log.warning(msg)
+    return msg
