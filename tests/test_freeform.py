@@ -162,3 +162,19 @@ def test_protocol_database_loader_and_errors() -> None:
     with pytest.raises(DataError, match=r"\(N, 3\)"):
         model.hypotheses(np.zeros((5, 2)), None)
     assert model.hypotheses(np.zeros((5, 3)), None) == []
+
+
+def test_database_entry_with_mesh_file_and_table_cache(tmp_path: Path) -> None:
+    from mks_sim.io import write_stl
+    from mks_sim.models.database import ModelDatabase
+
+    write_stl(tmp_path / "ring.stl", torus_mesh())
+    (tmp_path / "ring.toml").write_text(
+        '[[model]]\nname = "ring"\nkind = "freeform"\nmesh = "ring.stl"\n'
+        'tables = "ring_tables.npz"\nsymmetry = "axial"\n'
+    )
+    first = ModelDatabase.from_dir(tmp_path).get("ring")
+    assert (tmp_path / "ring_tables.npz").is_file()
+    again = ModelDatabase.from_dir(tmp_path).get("ring")  # from the cached tables
+    np.testing.assert_array_equal(first.signatures, again.signatures)
+    assert again.symmetries() is not None

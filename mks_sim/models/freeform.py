@@ -715,8 +715,8 @@ def _builtin_mesh(name: str) -> Mesh:
 def load_freeform_entry(entry: Any, where: str) -> FreeformModel:
     """Database loader of ``kind = "freeform"`` entries.
 
-    Entry fields: ``name``; ``mesh`` (a mesh file, path relative to the TOML file's folder
-    allowed via the database, or ``"builtin:industrial_part" | "builtin:torus" |
+    Entry fields: ``name``; ``mesh`` (a mesh file, relative paths from the TOML file's folder,
+    or ``"builtin:industrial_part" | "builtin:torus" |
     "builtin:blob"``); optional ``tables`` (an ``.npz`` saved by :meth:`FreeformModel.save`,
     used instead of rebuilding when it exists); ``scale`` (model units -> metres, default 1);
     ``symmetry`` (``"none"`` | ``"axial"``); ``config`` (a table of :class:`FreeformConfig`
@@ -725,8 +725,16 @@ def load_freeform_entry(entry: Any, where: str) -> FreeformModel:
     from mks_sim.errors import SpecError
 
     name = str(entry.get("name", "freeform"))
-    tables = entry.get("tables")
-    if tables is not None and Path(tables).is_file():
+    # Relative paths are relative to the TOML file (``where`` starts with its path).
+    toml_file = Path(where.split(": model ")[0])
+    base = toml_file.parent if toml_file.is_file() else Path.cwd()
+
+    def resolve(v: Any) -> Path:
+        q = Path(str(v))
+        return q if q.is_absolute() else base / q
+
+    tables = None if entry.get("tables") is None else resolve(entry["tables"])
+    if tables is not None and tables.is_file():
         model = FreeformModel.load(tables)
     else:
         mesh_spec = entry.get("mesh")
@@ -737,7 +745,7 @@ def load_freeform_entry(entry: Any, where: str) -> FreeformModel:
         else:
             from mks_sim.io.mesh import read_mesh
 
-            mesh = read_mesh(mesh_spec)
+            mesh = read_mesh(resolve(mesh_spec))
         cfg_fields = dict(entry.get("config", {}))
         if "radii" in cfg_fields:
             cfg_fields["radii"] = tuple(cfg_fields["radii"])
