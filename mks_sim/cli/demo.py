@@ -337,7 +337,10 @@ def _summary(demo: Demo, seconds: float, video: Any) -> dict[str, Any]:
         "grasp",
         "retries",
     )
-    table = format_table(headers, rows)
+    table = format_table(headers, rows) + (
+        "\nrotation errors are modulo the object's symmetries (cube: its 24 rotations; the "
+        "sphere's orientation is not observable)"
+    )
     doc = {
         "seed": demo.seed,
         "seconds": round(seconds, 1),
