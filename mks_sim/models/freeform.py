@@ -114,7 +114,7 @@ class FreeformConfig:
     modes_per_peak: int = 2
     mode_angle_deg: float = 12.0
     normal_tolerance_deg: float = 40.0
-    retry_votes: int = 40
+    retry_votes: int = 150
     seed: int = 0
 
     def resolved(self, size: float) -> FreeformConfig:
