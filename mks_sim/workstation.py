@@ -353,6 +353,18 @@ def _localize_polyhedral(
         )
     )
     objects = objects[keep]
+    # Spheres of the database's sphere models the detector missed (noisy stereo curvature):
+    # fixed-radius centre Hough + fit + cap check, their shells set aside as well.
+    t = time.perf_counter()
+    d0 = _noise_scale(points, table, 0.0)
+    for radius in _known_sphere_radii():
+        seeds = _sphere_hough(objects, radius)
+        found = [h for _, h, chk in _score_spheres(objects, seeds, radius, d0) if chk["ok"]]
+        for h in found:
+            shell = np.abs(np.linalg.norm(objects - h.matrix[:3, 3], axis=1) - radius)
+            objects = objects[shell > d0 + 0.001]
+        extra["spheres_set_aside"] += len(found)
+    timing["known_spheres"] = time.perf_counter() - t
     extra["object_points"] = len(objects)
     if len(objects) < 30:
         return [], extra
@@ -439,6 +451,24 @@ def _localize_polyhedral(
             "ok": int(sum(c["ok"] for c in checks2)),
         }
         timing["support_fallback"] = time.perf_counter() - t
+    # Polish: the best-scored candidates (ICP inlier fraction), passed or not, get a full
+    # ICP on the points near them and are checked again (coarse starts stop short).
+    t = time.perf_counter()
+    top = sorted(range(len(candidates)), key=lambda i: -np.nan_to_num(candidates[i].score))[:6]
+    polished = _refine_near([candidates[i] for i in top], model, objects, d, rng)
+    if polished:
+        checks3 = [
+            _consistency(h.matrix, surface_pts, surface_nrm, points, table, d) for h in polished
+        ]
+        candidates += polished
+        checks += checks3
+        order = sorted(
+            range(len(checks)),
+            key=lambda i: (not checks[i]["ok"], -checks[i]["explained"], -candidates[i].score),
+        )
+        good = [candidates[i] for i in order if checks[i]["ok"]]
+        extra["checks"] = [checks[i] for i in order[:5]]
+    timing["polish"] = time.perf_counter() - t
     if good and detected is not None and len(detected):
         T = np.asarray(good[0].matrix)
         model_feats = getattr(model, "vertexes", None)
@@ -447,6 +477,21 @@ def _localize_polyhedral(
             dist = cKDTree(detected).query(mv)[0]
             extra["feature_support"] = int((dist < 4 * d).sum())
     return good, extra
+
+
+@functools.lru_cache(maxsize=1)
+def _known_sphere_radii() -> tuple[float, ...]:
+    """Radii of the database's sphere models (metres)."""
+    try:
+        db = _default_db()
+    except MksError:
+        return ()
+    radii = []
+    for name in db.names():
+        r = getattr(db.get(name), "radius_m", None)
+        if isinstance(r, float) and r > 0:
+            radii.append(r)
+    return tuple(sorted(set(radii)))
 
 
 def _wants_support(
@@ -688,13 +733,29 @@ def _localize_sphere(
     extra["candidates"] = len(seeds)
 
     t = time.perf_counter()
-    tree = cKDTree(objects) if len(objects) else None
+    scored = _score_spheres(objects, seeds, radius, d)
+    timing["refinement"] = time.perf_counter() - t
+    scored.sort(key=lambda x: (not x[2]["ok"], -x[0], x[1].rmse))
+    extra["inlier_distance_m"] = d
+    extra["checks"] = [chk for _, _, chk in scored[:5]]
+    good: list[PoseHypothesis] = []
+    for _, h, chk in scored:
+        if chk["ok"] and all(np.linalg.norm(h.matrix[:3, 3] - g.matrix[:3, 3]) > d for g in good):
+            good.append(h)
+    return good, extra
+
+
+def _score_spheres(
+    objects: FloatArray, seeds: list[FloatArray], radius: float, d: float
+) -> list[tuple[float, PoseHypothesis, dict[str, Any]]]:
+    """Refine sphere centre seeds (fixed radius) and check each: cap coverage, residual."""
+    out: list[tuple[float, PoseHypothesis, dict[str, Any]]] = []
+    if len(objects) < 20:
+        return out
+    tree = cKDTree(objects)
     cap = _fibonacci(400)
     cap = cap[cap[:, 2] > 0.3]
-    scored: list[tuple[float, PoseHypothesis, dict[str, Any]]] = []
     for c0 in seeds:
-        if tree is None:
-            break
         fit = _fit_fixed_sphere(objects, tree, np.asarray(c0, dtype=float), radius, d)
         if fit is None:
             continue
@@ -719,16 +780,8 @@ def _localize_sphere(
         T = np.eye(4)
         T[:3, 3] = c
         h = PoseHypothesis(T, c.copy(), votes=n_in, rmse=rmse, score=coverage)
-        scored.append((coverage, h, check))
-    timing["refinement"] = time.perf_counter() - t
-    scored.sort(key=lambda x: (not x[2]["ok"], -x[0], x[1].rmse))
-    extra["inlier_distance_m"] = d
-    extra["checks"] = [chk for _, _, chk in scored[:5]]
-    good: list[PoseHypothesis] = []
-    for _, h, chk in scored:
-        if chk["ok"] and all(np.linalg.norm(h.matrix[:3, 3] - g.matrix[:3, 3]) > d for g in good):
-            good.append(h)
-    return good, extra
+        out.append((coverage, h, check))
+    return out
 
 
 def _fibonacci(n: int) -> FloatArray:
