@@ -35,6 +35,7 @@ from scipy.spatial import ConvexHull, cKDTree
 
 from mks_sim.errors import DataError, MksError, NotFound
 from mks_sim.geometry.transforms import cube_rotations, make_transform
+from mks_sim.io.units import check_scale
 from mks_sim.lowlevel.grouping import (
     PlanarRegion,
     Plane,
@@ -602,6 +603,8 @@ class Localization:
         noise: estimated noise sigma of the (averaged) scene (RMS distance from local planes).
         voxel: voxel edge the scene was averaged on (0: not averaged).
         dropped_nan: NaN/inf scene rows dropped on input.
+        warnings: what the caller should hear about (e.g. model and scene sizes that differ by
+            orders of magnitude: wrong units or a missing ``scale``).
         timing: seconds per stage (``graph``, ``table``, ``grouping``, ``matching``,
             ``refinement``, ``total``).
     """
@@ -618,6 +621,7 @@ class Localization:
     voxel: float
     dropped_nan: int
     timing: dict[str, float]
+    warnings: tuple[str, ...] = ()
 
     @property
     def best(self) -> PoseHypothesis | None:
@@ -698,12 +702,15 @@ def _find_table(
 
 
 def _as_localizable(model: Any, scale: float) -> LocalizableModel:
-    if isinstance(model, PolyhedralModel):
-        return model if scale == 1.0 else model.scaled(scale)
     if scale != 1.0:
-        raise DataError(
-            f"model {getattr(model, 'name', model)!r}: scale is only supported for PolyhedralModel"
-        )
+        if not callable(getattr(model, "scaled", None)):
+            raise DataError(
+                f"model {getattr(model, 'name', model)!r}: scale needs a model with a "
+                "scaled(factor) method (PolyhedralModel, FreeformModel)"
+            )
+        model = model.scaled(scale)
+    if isinstance(model, PolyhedralModel):
+        return model
     if isinstance(model, LocalizableModel):
         return model
     raise DataError(
@@ -781,6 +788,8 @@ def localize_cloud(
     if len(pts) < 10:
         raise DataError(f"localize_cloud: expected at least 10 finite scene points, got {len(pts)}")
     vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(3)
+    # Extent is linear in scale: the unscaled model's points times `scale` are loc_model's.
+    size_warning = check_scale(loc_model.surface_points() / scale, pts, scale)
 
     t = time.perf_counter()
     spacing, noise = _spacing_and_noise(pts, rng)
@@ -936,6 +945,7 @@ def localize_cloud(
         voxel=voxel_size,
         dropped_nan=dropped,
         timing=timing,
+        warnings=(size_warning,) if size_warning else (),
     )
 
 

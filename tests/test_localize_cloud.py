@@ -263,3 +263,40 @@ def test_paper_cube_from_the_model_database() -> None:
     assert pos < 0.02 and rot < 1.0
     with pytest.raises(DataError, match="control points"):
         load_model("paper_renault")
+
+
+def test_free_form_model_by_database_name_on_a_part_scan(tmp_path, capsys) -> None:
+    from mks_sim.geometry.meshes import industrial_part_mesh
+
+    rng = np.random.default_rng(810)
+    T = make_transform(_rot_z(2.1), [0.01, -0.015, 0.0])  # resting on its bottom face
+    pts = _table_scan(industrial_part_mesh(), T, EYES[1], rng, width=240, height=180)
+    scene = tmp_path / "part_scan.ply"
+    write_ply(scene, pts)
+    code = main(["localize-cloud", "--model", "part_freeform", "--scene", str(scene), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["found"] is True and out["warnings"] == []
+    pos, rot = pose_error(np.array(out["hypotheses"][0]["matrix"]), T)
+    assert pos < 0.002 and rot < 2.0
+
+
+def test_model_and_scene_in_different_units_warn_and_scale_fixes_it(
+    tmp_path, capsys, caplog
+) -> None:
+    rng = np.random.default_rng(820)
+    T = make_transform(_rot_z(0.7), [0.0, 0.01, SIZE / 2])
+    scene = tmp_path / "scan_m.ply"
+    write_ply(scene, _table_scan(box_mesh(SIZE), T, EYES[0], rng))
+    model_mm = tmp_path / "cube_mm.stl"
+    write_stl(model_mm, box_mesh(SIZE * 1000))  # CAD in millimetres, scan in metres
+    main(["localize-cloud", "--model", str(model_mm), "--scene", str(scene), "--json"])
+    captured = capsys.readouterr()
+    (warning,) = json.loads(captured.out)["warnings"]
+    assert "--scale 0.001" in warning
+    assert any("--scale 0.001" in r.getMessage() for r in caplog.records)  # logged as well
+    args = ["--model", str(model_mm), "--scene", str(scene), "--scale", "0.001", "--json"]
+    assert main(["localize-cloud", *args]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["found"] and out["warnings"] == []
+    pos, rot = pose_error(np.array(out["hypotheses"][0]["matrix"]), T, cube_rotations())
+    assert pos < 0.001 and rot < 1.0

@@ -84,6 +84,7 @@ def _result_json(loc: Any, n_points: int, dropped: int) -> dict[str, Any]:
         ],
         "table_removed": loc.table is not None,
         "timing_s": {k: round(v, 4) for k, v in loc.timing.items()},
+        "warnings": list(loc.warnings),
     }
 
 
