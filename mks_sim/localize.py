@@ -459,7 +459,10 @@ def _frame(a: FloatArray, b: FloatArray) -> FloatArray:
     """(3, 3) orthonormal frame (columns) from two non-parallel directions."""
     e1 = a / np.linalg.norm(a)
     e3 = np.cross(a, b)
-    e3 /= np.linalg.norm(e3)
+    norm = np.linalg.norm(e3)
+    if norm < 1e-9:  # callers filter near-parallel pairs; never divide by zero into NaN frames
+        raise DataError(f"_frame: directions {a} and {b} are parallel")
+    e3 /= norm
     return np.column_stack([e1, np.cross(e3, e1), e3])
 
 
