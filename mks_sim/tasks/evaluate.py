@@ -23,16 +23,9 @@ HOLD_S = 1.0
 
 def true_object_to_world(world, name: str) -> np.ndarray:
     """(4, 4) true pose of body ``name`` (ground truth)."""
-    try:
-        from mks_sim.sim import truth
+    from mks_sim.sim import truth
 
-        return np.asarray(truth.object_to_world(world, name), dtype=float)
-    except (ImportError, AttributeError):  # pragma: no cover - before the truth module lands
-        d = world.data
-        T = np.eye(4)
-        T[:3, :3] = d.body(name).xmat.reshape(3, 3)
-        T[:3, 3] = d.body(name).xpos
-        return T
+    return np.asarray(truth.object_to_world(world, name), dtype=float)
 
 
 def lowest_point_z(model: mujoco.MjModel, data: mujoco.MjData, body: str) -> float:
