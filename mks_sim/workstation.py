@@ -422,13 +422,9 @@ def _localize_polyhedral(
         _consistency(h.matrix, surface_pts, surface_nrm, points, table, d) for h in candidates
     ]
     timing["consistency"] = time.perf_counter() - t
-    order = sorted(
-        range(len(checks)),
-        key=lambda i: (not checks[i]["ok"], -checks[i]["explained"], -candidates[i].score),
-    )
+    order, good = _rank(candidates, checks)
     extra["inlier_distance_m"] = d
     extra["checks"] = [checks[i] for i in order[:5]]
-    good = [candidates[i] for i in order if checks[i]["ok"]]
     if table is not None and _wants_support(good, checks, order):
         # The object rests on the table: hypotheses from every support face of the model put
         # on the sensed table plane (yaw from the footprint's principal axes and 8 fixed
@@ -440,11 +436,7 @@ def _localize_polyhedral(
         ]
         candidates += support
         checks += checks2
-        order = sorted(
-            range(len(checks)),
-            key=lambda i: (not checks[i]["ok"], -checks[i]["explained"], -candidates[i].score),
-        )
-        good = [candidates[i] for i in order if checks[i]["ok"]]
+        order, good = _rank(candidates, checks)
         extra["checks"] = [checks[i] for i in order[:5]]
         extra["support_fallback"] = {
             "candidates": len(support),
@@ -462,11 +454,7 @@ def _localize_polyhedral(
         ]
         candidates += polished
         checks += checks3
-        order = sorted(
-            range(len(checks)),
-            key=lambda i: (not checks[i]["ok"], -checks[i]["explained"], -candidates[i].score),
-        )
-        good = [candidates[i] for i in order if checks[i]["ok"]]
+        order, good = _rank(candidates, checks)
         extra["checks"] = [checks[i] for i in order[:5]]
     timing["polish"] = time.perf_counter() - t
     if good and detected is not None and len(detected):
@@ -638,6 +626,18 @@ def _rotation_about(axis: FloatArray, angle: float) -> FloatArray:
     from scipy.spatial.transform import Rotation
 
     return Rotation.from_rotvec(np.asarray(axis, dtype=float) * angle).as_matrix()
+
+
+def _rank(
+    candidates: list[PoseHypothesis], checks: list[dict[str, Any]]
+) -> tuple[list[int], list[PoseHypothesis]]:
+    """Candidate order (consistent first, then most points explained, then score) and the
+    consistent candidates in that order."""
+    order = sorted(
+        range(len(checks)),
+        key=lambda i: (not checks[i]["ok"], -checks[i]["explained"], -candidates[i].score),
+    )
+    return order, [candidates[i] for i in order if checks[i]["ok"]]
 
 
 def _consistency(
