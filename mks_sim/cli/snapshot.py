@@ -115,6 +115,16 @@ def _figure(size: tuple[float, float] = (6.4, 5.2)) -> Any:
     return plt, fig, ax
 
 
+def _save_top_view(plt: Any, fig: Any, ax: Any, path: Path) -> None:
+    """Label a top view in millimetres at equal aspect, save it and close the figure."""
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_aspect("equal")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def _objects(points: np.ndarray, table_z: float = 0.75, margin: float = 0.004) -> np.ndarray:
     return points[points[:, 2] > table_z + margin]
 
@@ -138,12 +148,7 @@ def draw_spg(path: Path, points: np.ndarray, title: str) -> None:
         ax.scatter(obj[:, 0] * 1000, obj[:, 1] * 1000, c=labels, s=1.5, cmap="tab20")
         title += f" ({len(obj)} points, {n} components)"
     ax.set_title(title, fontsize=9)
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_aspect("equal")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _save_top_view(plt, fig, ax, path)
 
 
 def draw_curvature(path: Path, rows: np.ndarray) -> None:
@@ -158,12 +163,7 @@ def draw_curvature(path: Path, rows: np.ndarray) -> None:
     )
     ax.set_title("Surface_Curvature (Table 4-5 codes), top view", fontsize=9)
     ax.legend(loc="upper right", fontsize=8, markerscale=5)
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_aspect("equal")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _save_top_view(plt, fig, ax, path)
 
 
 def draw_planes(
@@ -209,12 +209,7 @@ def draw_planes(
     if (vertexes is not None and len(vertexes)) or (control is not None and len(control)):
         ax.legend(loc="upper right", fontsize=8)
     ax.set_title(f"planar regions ({k}) and recovered vertexes, top view", fontsize=9)
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_aspect("equal")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _save_top_view(plt, fig, ax, path)
 
 
 def draw_detections(path: Path, frame: Any, circles: np.ndarray, shapes: np.ndarray) -> None:

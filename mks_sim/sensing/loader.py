@@ -183,14 +183,20 @@ def _parse_alternate(w: _Where, item: Any, path: str) -> AlternateSpec:
     )
 
 
-def _parse_sensor(path: Path, index: int, item: Any) -> SensorSpec:
+def _entry_name(path: Path, kind: str, index: int, item: Any) -> str:
+    """The ``name`` of the ``index``-th ``[[kind]]`` table, or a SpecError saying what is wrong."""
     if not isinstance(item, Mapping):
-        raise SpecError(f"{path}: sensor[{index}]: expected a table [[sensor]], got {_got(item)}")
+        raise SpecError(f"{path}: {kind}[{index}]: expected a table [[{kind}]], got {_got(item)}")
     name = item.get("name", _MISSING)
     if not isinstance(name, str) or not name.strip():
         raise SpecError(
-            f"{path}: sensor[{index}]: name: expected a non-empty string, got {_got(name)}"
+            f"{path}: {kind}[{index}]: name: expected a non-empty string, got {_got(name)}"
         )
+    return name
+
+
+def _parse_sensor(path: Path, index: int, item: Any) -> SensorSpec:
+    name = _entry_name(path, "sensor", index, item)
     w = _Where(f"{path}: sensor {name!r}")
     w.check_keys(item, _SENSOR_KEYS, "")
     alternates_raw = item.get("alternate", [])
@@ -217,13 +223,7 @@ def _parse_sensor(path: Path, index: int, item: Any) -> SensorSpec:
 
 
 def _parse_device(path: Path, index: int, item: Any) -> DeviceSpec:
-    if not isinstance(item, Mapping):
-        raise SpecError(f"{path}: device[{index}]: expected a table [[device]], got {_got(item)}")
-    name = item.get("name", _MISSING)
-    if not isinstance(name, str) or not name.strip():
-        raise SpecError(
-            f"{path}: device[{index}]: name: expected a non-empty string, got {_got(name)}"
-        )
+    name = _entry_name(path, "device", index, item)
     w = _Where(f"{path}: device {name!r}")
     w.check_keys(item, _DEVICE_KEYS, "")
     return DeviceSpec(
