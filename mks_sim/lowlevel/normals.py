@@ -114,21 +114,80 @@ def neighbour_table(
     return idx, valid
 
 
-def _pca(
-    pts: FloatArray, idx: NDArray[np.intp], valid: NDArray[np.bool_]
-) -> tuple[FloatArray, FloatArray]:
-    w = valid.astype(np.float64)  # (N, K)
-    nb = pts[idx]  # (N, K, 3)
-    wsum = w.sum(axis=1)
-    mean = np.einsum("nk,nki->ni", w, nb) / wsum[:, None]  # (N, 3)
-    d = nb - mean[:, None, :]
-    cov = np.einsum("nk,nki,nkj->nij", w, d, d) / wsum[:, None, None]  # (N, 3, 3)
-    evals, evecs = np.linalg.eigh(cov)  # ascending
-    total = evals.sum(axis=1)
-    curvature = np.divide(
-        np.clip(evals[:, 0], 0.0, None), total, out=np.zeros(len(pts)), where=total > 0
-    )
-    return evecs[:, :, 0].copy(), curvature
+def _ring_matrix(graph: GraphLike, rings: int) -> sparse.csr_array:
+    """(N, N) 0/1 matrix whose row i marks i and its neighbourhood of ``rings`` SPG rings
+    (ring 1: i's own SPG row; more rings: undirected reachability, as :func:`neighbour_table`)."""
+    adj = sparse.csr_array(graph.adjacency)
+    n = adj.shape[0]
+    if rings > 1:
+        one = sparse.csr_array((adj + adj.T) > 0, dtype=np.float64)
+        reach = one.copy()
+        for _ in range(rings - 1):
+            reach = sparse.csr_array(((reach @ one) + reach) > 0, dtype=np.float64)
+        adj = reach
+    eye = sparse.eye_array(n, format="csr", dtype=np.float64)
+    out = sparse.csr_array((sparse.csr_array(adj, dtype=np.float64) + eye) > 0, dtype=np.float64)
+    return out
+
+
+def _pca_sparse(pts: FloatArray, A: sparse.csr_array) -> tuple[FloatArray, FloatArray]:
+    """Normals and surface variation of every neighbourhood (rows of ``A``) from first and
+    second moments accumulated by sparse products (no (N, K, 3) gather)."""
+    c = pts - pts.mean(axis=0)  # centred: the moments do not cancel catastrophically
+    cnt = np.asarray(A.sum(axis=1)).reshape(-1)
+    mean = (A @ c) / cnt[:, None]
+    iu = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))
+    prod = c[:, iu[0]] * c[:, iu[1]]  # (N, 6)
+    second = (A @ prod) / cnt[:, None]
+    cov = second - mean[:, iu[0]] * mean[:, iu[1]]  # (N, 6): xx xy xz yy yz zz
+    return _smallest_eigen(cov)
+
+
+def _smallest_eigen(cov: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Closed-form eigen-analysis of N symmetric 3x3 matrices given as (N, 6) upper
+    triangles: the unit eigenvector of the smallest eigenvalue and ``lambda_0 / trace``.
+
+    Eigenvalues by the trigonometric solution of the characteristic cubic; the eigenvector
+    as the largest cross product of two rows of ``C - lambda_0 I``. Isotropic or degenerate
+    neighbourhoods fall back to ``numpy.linalg.eigh``.
+    """
+    a00, a01, a02, a11, a12, a22 = cov.T
+    q = (a00 + a11 + a22) / 3.0
+    p1 = a01**2 + a02**2 + a12**2
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p = np.sqrt((b00**2 + b11**2 + b22**2 + 2.0 * p1) / 6.0)
+    safe = p > 1e-300
+    ps = np.where(safe, p, 1.0)
+    det = (
+        b00 * (b11 * b22 - a12 * a12)
+        - a01 * (a01 * b22 - a12 * a02)
+        + a02 * (a01 * a12 - b11 * a02)
+    ) / ps**3
+    phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
+    lam0 = np.where(safe, q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0), q)
+    total = 3.0 * q
+    curvature = np.divide(np.clip(lam0, 0.0, None), total, out=np.zeros(len(cov)), where=total > 0)
+    r0 = np.stack([a00 - lam0, a01, a02], axis=1)
+    r1 = np.stack([a01, a11 - lam0, a12], axis=1)
+    r2 = np.stack([a02, a12, a22 - lam0], axis=1)
+    cands = np.stack([np.cross(r0, r1), np.cross(r0, r2), np.cross(r1, r2)], axis=1)
+    norms = np.linalg.norm(cands, axis=2)  # (N, 3)
+    best = np.argmax(norms, axis=1)
+    rows = np.arange(len(cov))
+    vec = cands[rows, best]
+    nb = norms[rows, best]
+    scale = np.maximum(np.abs(lam0), np.abs(q)) ** 2
+    bad = ~safe | (nb <= 1e-10 * np.maximum(scale, 1e-300))
+    normals = vec / np.where(bad, 1.0, nb)[:, None]
+    if bad.any():
+        full = np.empty((int(bad.sum()), 3, 3))
+        iu = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+        for k, (i, j) in enumerate(iu):
+            full[:, i, j] = cov[bad, k]
+            full[:, j, i] = cov[bad, k]
+        _, evecs = np.linalg.eigh(full)
+        normals[bad] = evecs[:, :, 0]
+    return normals, curvature
 
 
 def estimate_normals(
@@ -162,9 +221,9 @@ def estimate_normals(
     pts = as_points(points, "estimate_normals: points", min_points=3)
     if graph is None:
         graph = build_graph(pts, m=m)
-    normals, curvature = _pca(pts, *neighbour_table(graph, rings=normal_rings))
+    normals, curvature = _pca_sparse(pts, _ring_matrix(graph, normal_rings))
     if curvature_rings != normal_rings:
-        _, curvature = _pca(pts, *neighbour_table(graph, rings=curvature_rings))
+        _, curvature = _pca_sparse(pts, _ring_matrix(graph, curvature_rings))
     if viewpoint is not None:
         vp = np.asarray(viewpoint, dtype=np.float64).reshape(3)
         toward = vp[None, :] - pts
