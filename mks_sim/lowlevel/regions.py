@@ -21,6 +21,7 @@ from mks_sim.errors import DataError
 from mks_sim.lowlevel.normals import (
     DEFAULT_CURVATURE_THRESHOLD,
     GraphLike,
+    SurfaceNormals,
     as_points,
     build_graph,
     curvature_code,
@@ -373,6 +374,7 @@ def segment_surfaces(
     min_points: int = 20,
     seeds: str = "planar",
     normal_rings: int = 1,
+    surface_normals: SurfaceNormals | None = None,
 ) -> Segmentation:
     """Group a cloud on its SPG into planar regions and curved regions (sections 2.2, 4.1).
 
@@ -391,6 +393,9 @@ def segment_surfaces(
             planes curved too).
         normal_rings: SPG rings of the normals' neighbourhoods (2 smooths noisy normals at
             the cost of blurring edges wider).
+        surface_normals: normals and curvature of ``points`` already estimated on ``graph``
+            (a :class:`~mks_sim.localization.representation.Representation` computes them
+            once); ``viewpoint`` and ``normal_rings`` are then unused.
 
     Returns:
         :class:`Segmentation`.
@@ -401,7 +406,10 @@ def segment_surfaces(
     if graph is None:
         graph = build_graph(pts, m=m)
     graph = _FixedGraph(sparse.csr_array(graph.adjacency))  # the SPG builds it per access
-    sn = estimate_normals(pts, graph, viewpoint=viewpoint, normal_rings=normal_rings)
+    if surface_normals is not None and len(surface_normals.normals) == len(pts):
+        sn = surface_normals
+    else:
+        sn = estimate_normals(pts, graph, viewpoint=viewpoint, normal_rings=normal_rings)
     codes = curvature_code(sn.curvature, curvature_threshold)
     spacing = median_spacing(graph)
     dist = 2.0 * spacing if distance is None else float(distance)

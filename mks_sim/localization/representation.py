@@ -1,0 +1,402 @@
+"""The low-level representation of one point set, built once and shared (paper section 4).
+
+"The low-level representation is built once per snapshot and every logical sensor and model
+queries it": a :class:`Representation` holds, for the points of one stream, the k-d tree, the
+spacing and noise estimate, the supporting table plane (the one table finder,
+:func:`mks_sim.localization.verify.find_table`), the object points above it, their spatial
+proximity graph (SPG) and its components, normals and curvature, and the planar / curved
+segmentation. Every piece is computed lazily, at most once.
+
+:func:`representation_of` returns the one representation of a stream's points (keyed on the
+stream's read-only data array and the :class:`RepresentationConfig`); the sensing
+:class:`~mks_sim.sensing.snapshot.Snapshot` keeps it alive for the snapshot's lifetime
+(``snap.representation("Range_Points")``), and the description programs
+(``Vertex_Detector``, ``Control_Point_Detector``, ``Sphere_Detector``,
+``Surface_Curvature``) and the localization pipeline all take it from there.
+"""
+
+from __future__ import annotations
+
+import logging
+import weakref
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from mks_sim.errors import DataError
+
+__all__ = [
+    "Representation",
+    "RepresentationConfig",
+    "representation_of",
+    "spacing_and_noise",
+    "voxel_average",
+]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
+
+
+@dataclass(frozen=True)
+class RepresentationConfig:
+    """How a point set is turned into its low-level representation.
+
+    Attributes:
+        table_z_m: nominal table height (a sensor calibration parameter): the table plane is
+            searched near it; None searches the dominant plane anywhere.
+        gap_m: SPG edges longer than this do not join objects (None: 4 x the spacing).
+        m: SPG neighbours.
+        voxel: ``"auto"`` averages noisy or very dense clouds on a voxel grid (see
+            :meth:`Representation.voxel`), a number forces that edge, None never averages.
+        max_points: point budget of ``voxel="auto"``.
+        viewpoint: (x, y, z) sensor position (orients normals); None: away from each object
+            component's centroid.
+    """
+
+    table_z_m: float | None = None
+    gap_m: float | None = None
+    m: int = 12
+    voxel: float | str | None = "auto"
+    max_points: int = 30000
+    viewpoint: tuple[float, float, float] | None = None
+
+
+def voxel_average(points: FloatArray, voxel: float) -> FloatArray:
+    """(M, 3) centroids of the points in each occupied cube of edge ``voxel`` (the one voxel
+    filter of the package)."""
+    keys = np.floor(points / voxel).astype(np.int64)
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]  # one int64 per cell
+    _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    out = np.zeros((len(counts), 3))
+    for d in range(3):
+        out[:, d] = np.bincount(inverse, weights=points[:, d]) / counts
+    return out
+
+
+def spacing_and_noise(
+    points: FloatArray, rng: np.random.Generator, tree: cKDTree | None = None
+) -> tuple[float, float]:
+    """Median nearest-neighbour distance and a noise estimate (median RMS distance of 12
+    nearest neighbours from their fitted plane; the planar majority of a scene dominates)."""
+    n = len(points)
+    probe = points if n <= 1500 else points[rng.choice(n, 1500, replace=False)]
+    k = min(12, n)
+    tree = cKDTree(points) if tree is None else tree
+    d, idx = tree.query(probe, k=k)
+    spacing = float(np.median(d[:, 1])) if k > 1 else 0.0
+    nb = points[idx]  # (P, k, 3)
+    c = nb - nb.mean(axis=1, keepdims=True)
+    lam0 = np.linalg.eigvalsh(np.einsum("pki,pkj->pij", c, c) / k)[:, 0]
+    return spacing, float(np.median(np.sqrt(np.clip(lam0, 0.0, None))))
+
+
+class Representation:
+    """The low-level representation of one point set; every piece lazy and computed once.
+
+    Args:
+        points: (N, 3) float points (world frame for the workstation); NaN rows dropped.
+        config: how to build it.
+        rng: generator for subsampling and RANSAC (default seeded 0: the representation of
+            one stream is the same whoever asks first).
+
+    Attributes (lazy):
+        raw: the finite input points.
+        points: the points the representation is built on (``raw`` voxel-averaged when
+            :attr:`voxel` > 0).
+        tree, spacing, noise, voxel, table, table_threshold, object_indices, objects,
+        graph, labels, normals, segmentation.
+    """
+
+    def __init__(
+        self,
+        points: ArrayLike,
+        config: RepresentationConfig | None = None,
+        *,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        raw = np.asarray(points, dtype=np.float64)
+        if raw.ndim != 2 or raw.shape[1] < 3:
+            raise DataError(f"Representation: expected (N, 3) points, got shape {raw.shape}")
+        raw = raw[:, :3]
+        self.raw: FloatArray = raw[np.all(np.isfinite(raw), axis=1)]
+        if len(self.raw) < 10:
+            raise DataError(
+                f"Representation: expected at least 10 finite points, got {len(self.raw)}"
+            )
+        self.config = config if config is not None else RepresentationConfig()
+        self._rng = np.random.default_rng(0) if rng is None else rng
+        self._cache: dict[Any, Any] = {}
+
+    # ------------------------------------------------------------------ sampling
+
+    @cached_property
+    def _raw_stats(self) -> tuple[float, float]:
+        return spacing_and_noise(self.raw, self._rng)
+
+    @cached_property
+    def voxel(self) -> float:
+        """Voxel edge the points were averaged on (0: not averaged).
+
+        ``"auto"``: noise above 0.2 x the spacing defeats PCA normals over one SPG ring, so
+        the cloud is averaged at max(spacing, 3 sigma); a cloud over ``max_points`` is
+        averaged to about that many points.
+        """
+        v = self.config.voxel
+        if v is None:
+            return 0.0
+        if not isinstance(v, str):
+            return float(v)
+        spacing, noise = self._raw_stats
+        size = 0.0
+        if noise > 0.2 * spacing:
+            size = max(spacing, 3.0 * noise)
+        if len(self.raw) > self.config.max_points:
+            size = max(size, 1.1 * spacing * np.sqrt(len(self.raw) / self.config.max_points))
+        return float(size)
+
+    @cached_property
+    def points(self) -> FloatArray:
+        """(M, 3) the points the representation is built on."""
+        if self.voxel > 0:
+            return voxel_average(self.raw, self.voxel)
+        return self.raw
+
+    @cached_property
+    def tree(self) -> cKDTree:
+        """k-d tree of :attr:`points`."""
+        return cKDTree(self.points)
+
+    @cached_property
+    def _stats(self) -> tuple[float, float]:
+        if self.voxel == 0:
+            return self._raw_stats
+        return spacing_and_noise(self.points, self._rng, self.tree)
+
+    @property
+    def spacing(self) -> float:
+        """Median nearest-neighbour distance of :attr:`points`."""
+        return self._stats[0]
+
+    @property
+    def noise(self) -> float:
+        """Noise sigma estimate of :attr:`points`."""
+        return self._stats[1]
+
+    @property
+    def noisy(self) -> bool:
+        """Noise comparable to the spacing (two-ring normals)."""
+        return self.noise > 0.2 * self.spacing
+
+    # ------------------------------------------------------------------ table and objects
+
+    @cached_property
+    def _table(self) -> tuple[Any, float, NDArray[np.bool_]]:
+        from mks_sim.localization.verify import find_table
+
+        vp = self.config.viewpoint
+        return find_table(
+            self.points,
+            self._rng,
+            spacing=self.spacing,
+            noise=self.noise,
+            near_z=self.config.table_z_m,
+            viewpoint=None if vp is None else np.asarray(vp, dtype=np.float64),
+        )
+
+    @property
+    def table(self) -> Any:
+        """The supporting plane (:class:`~mks_sim.lowlevel.regions.Plane`, normal towards
+        the objects) or None."""
+        return self._table[0]
+
+    @property
+    def table_threshold(self) -> float:
+        """Distance above the table below which a point counts as table."""
+        return self._table[1]
+
+    @cached_property
+    def object_indices(self) -> IntArray:
+        """Indices (into :attr:`points`) of the points off the table, on its object side."""
+        table, _, band = self._table
+        keep = np.flatnonzero(~band)
+        if table is not None:
+            keep = keep[table.distance(self.points[keep]) > 0]
+        return keep
+
+    @cached_property
+    def objects(self) -> FloatArray:
+        """(K, 3) the object points (off the table)."""
+        return self.points[self.object_indices]
+
+    @cached_property
+    def gap(self) -> float:
+        """SPG edge limit joining object points."""
+        g = self.config.gap_m
+        return float(g) if g is not None else 4.0 * self.spacing
+
+    @cached_property
+    def graph(self) -> Any:
+        """SPG of :attr:`objects` (``m`` neighbours, edges <= :attr:`gap`)."""
+        from mks_sim.lowlevel.spg import SpatialProximityGraph
+
+        return SpatialProximityGraph(self.objects, m=self.config.m, threshold=self.gap)
+
+    @cached_property
+    def _adjacency(self) -> Any:
+        from scipy import sparse
+
+        return sparse.csr_array(self.graph.adjacency)
+
+    @cached_property
+    def labels(self) -> IntArray:
+        """(K,) SPG component of each object point."""
+        from scipy.sparse import csgraph
+
+        if len(self.objects) == 0:
+            return np.zeros(0, dtype=np.intp)
+        _, comp = csgraph.connected_components(self._adjacency, directed=True, connection="weak")
+        return np.asarray(comp, dtype=np.intp)
+
+    def components(self, min_points: int = 30) -> list[IntArray]:
+        """Object-point indices of each SPG component with at least ``min_points``, largest
+        first."""
+        key = ("components", min_points)
+        if key not in self._cache:
+            counts = np.bincount(self.labels) if len(self.labels) else np.zeros(0, np.intp)
+            order = np.argsort(-counts, kind="stable")
+            self._cache[key] = [
+                np.flatnonzero(self.labels == c) for c in order if counts[c] >= min_points
+            ]
+        out: list[IntArray] = self._cache[key]
+        return out
+
+    # ------------------------------------------------------------------ grouping
+
+    @cached_property
+    def normals(self) -> Any:
+        """:class:`~mks_sim.lowlevel.normals.SurfaceNormals` of :attr:`objects` (two-ring
+        normals when the cloud is noisy), oriented towards the viewpoint or away from each
+        component's centroid."""
+        from mks_sim.lowlevel.normals import SurfaceNormals, estimate_normals
+
+        pts = self.objects
+        if len(pts) < 3:
+            return SurfaceNormals(np.zeros((len(pts), 3)), np.zeros(len(pts)))
+        graph = _Fixed(self._adjacency)
+        vp = self.config.viewpoint
+        sn = estimate_normals(
+            pts, graph, viewpoint=vp, normal_rings=2 if self.noisy else 1, curvature_rings=2
+        )
+        if vp is None:  # away from each component's centroid (one convex object each)
+            lab = self.labels
+            n_comp = int(lab.max()) + 1 if len(lab) else 0
+            counts = np.bincount(lab, minlength=n_comp).astype(np.float64)
+            centre = (
+                np.stack(
+                    [np.bincount(lab, weights=pts[:, d], minlength=n_comp) for d in range(3)], 1
+                )
+                / np.maximum(counts, 1.0)[:, None]
+            )
+            nrm = sn.normals.copy()
+            flip = np.einsum("ni,ni->n", nrm, pts - centre[lab]) < 0
+            nrm[flip] *= -1.0
+            sn = SurfaceNormals(nrm, sn.curvature)
+        return sn
+
+    @cached_property
+    def segmentation(self) -> Any:
+        """:class:`~mks_sim.lowlevel.regions.Segmentation` of :attr:`objects`: planar
+        regions (never across components) and curved regions with sphere fits."""
+        from mks_sim.lowlevel.regions import segment_surfaces
+
+        return segment_surfaces(
+            self.objects, _Fixed(self._adjacency), surface_normals=self.normals, seeds="planar"
+        )
+
+    def planes_of(self, component: IntArray, min_points: int = 20) -> list[Any]:
+        """Planar regions inside one component (indices into :attr:`objects`)."""
+        lab = self.labels
+        comp = int(lab[component[0]]) if len(component) else -1
+        return [
+            r
+            for r in self.segmentation.planes
+            if len(r.indices) >= min_points and int(lab[r.indices[0]]) == comp
+        ]
+
+    def vertexes_of(
+        self, component: IntArray, *, min_points: int = 20, min_angle_deg: float = 30.0
+    ) -> Any:
+        """:class:`~mks_sim.lowlevel.vertexes.Vertexes` of one component: triples of its
+        planes and the table (as the face the object rests on, when it touches it); face
+        indices >= the number of planes refer to the table. Cached."""
+        key = ("vertexes", int(component[0]) if len(component) else -1, min_points, min_angle_deg)
+        if key not in self._cache:
+            from mks_sim.lowlevel.vertexes import plane_vertexes
+
+            planes = self.planes_of(component, min_points)
+            extra = []
+            table = self.table
+            if table is not None and len(component):
+                touch = float(np.min(table.distance(self.objects[component])))
+                if touch <= self.table_threshold + 4.0 * self.spacing:
+                    extra = [table.flipped()]
+            tol = 4.0 * max(self.spacing, self.segmentation.spacing, 1e-4)
+            self._cache[key] = (
+                plane_vertexes(
+                    planes,
+                    self.objects,
+                    extra_planes=extra,
+                    tolerance=tol,
+                    min_angle_deg=min_angle_deg,
+                ),
+                planes,
+            )
+        return self._cache[key]
+
+
+@dataclass(frozen=True)
+class _Fixed:
+    """A graph whose adjacency is already a CSR array (no rebuild per access)."""
+
+    adjacency: Any
+
+
+_REGISTRY: dict[tuple[int, RepresentationConfig], tuple[Any, Representation]] = {}
+
+
+def representation_of(
+    stream_or_points: Any, config: RepresentationConfig | None = None
+) -> Representation:
+    """The one representation of a stream's points (or of an array) for ``config``.
+
+    Keyed on the identity of the read-only data array (a stream's data never changes), so
+    the snapshot, the description programs and the matchers share it while the data lives.
+    """
+    if isinstance(stream_or_points, np.ndarray):
+        arr = stream_or_points
+    else:
+        arr = np.asarray(getattr(stream_or_points, "data", stream_or_points))
+    cfg = config if config is not None else RepresentationConfig()
+    key = (id(arr), cfg)
+    hit = _REGISTRY.get(key)
+    if hit is not None and hit[0]() is arr:
+        return hit[1]
+    rep = Representation(arr, cfg)
+
+    def _forget(_ref: Any, k: tuple[int, RepresentationConfig] = key) -> None:
+        _REGISTRY.pop(k, None)
+
+    try:
+        ref = weakref.ref(arr, _forget)
+    except TypeError:  # not weak-referenceable: no sharing
+        return rep
+    _REGISTRY[key] = (ref, rep)
+    return rep

@@ -1,0 +1,213 @@
+"""Verification: the one table finder, the one scene-consistency check, batch scoring, ranking.
+
+- :func:`find_table` — the supporting plane of a scene (near a nominal height when the sensor
+  calibration gives one, else the dominant plane that looks like a support).
+- :func:`batch_explained` — how many scene points each of K candidate poses explains, for all
+  candidates in one k-d tree query of the stacked transformed model samples (hypotheses are
+  scored in arrays; ICP runs only on the best).
+- :class:`Consistency` / :func:`consistency` — does a posed model agree with what the sensors
+  saw (no point seen through it, none below it, no penetration of the table)?
+- :func:`rank` — consistent first, then most points explained, then score.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from mks_sim.lowlevel.regions import Plane, fit_plane_ransac
+from mks_sim.models.pose import PoseHypothesis
+
+__all__ = ["Consistency", "batch_explained", "consistency", "find_table", "rank"]
+
+FloatArray = NDArray[np.float64]
+
+
+def find_table(
+    points: FloatArray,
+    rng: np.random.Generator,
+    *,
+    spacing: float,
+    noise: float,
+    near_z: float | None = None,
+    viewpoint: FloatArray | None = None,
+    min_fraction: float = 0.2,
+) -> tuple[Plane | None, float, NDArray[np.bool_]]:
+    """The supporting plane, its band half-width and the (N,) mask of points in the band.
+
+    With ``near_z`` (the nominal table height, a sensor calibration parameter): RANSAC on the
+    points within 2 cm of it; the plane must be horizontal (normal z >= 0.95) and hold at
+    least ``min_fraction`` of the points; band = max(3 mm, 3 x the inliers' RMS). Without:
+    the dominant plane if it looks like a support (large, the rest on one side of it and
+    inside its footprint, facing the viewpoint); band = 4 robust sigmas of its residuals.
+    The plane's normal points towards the objects; None when there is no table.
+    """
+    none = np.zeros(len(points), dtype=bool)
+    if len(points) < 50:
+        return None, 0.0, none
+    if near_z is not None:
+        low_mask = np.abs(points[:, 2] - near_z) < 0.02
+        low = points[low_mask]
+        if len(low) < max(50, min_fraction * len(points)):
+            return None, 0.0, none
+        plane, inl = fit_plane_ransac(low, 0.003, rng, iterations=100)
+        if plane.normal[2] < 0:
+            plane = plane.flipped()
+        if plane.normal[2] < 0.95:
+            return None, 0.0, none
+        resid = plane.distance(low[inl])
+        rmse = float(np.sqrt(np.mean(resid**2)))
+        thr = float(max(0.003, 3.0 * rmse))
+        table = Plane(plane.normal, plane.offset, rmse)
+        return table, thr, np.abs(table.distance(points)) <= thr
+    threshold = max(spacing, 3.0 * noise, 1e-12)
+    plane, _ = fit_plane_ransac(points, threshold, rng, iterations=150)
+    d = plane.distance(points)
+    near = np.abs(d) <= 3.0 * threshold
+    band = max(threshold, 4.0 * 1.4826 * float(np.median(np.abs(d[near]))))
+    inl = np.abs(d) <= band
+    off = np.abs(d) > 2.0 * band  # clearly off the plane: objects (and outliers)
+    if inl.mean() < min_fraction or off.sum() < 10:
+        return None, 0.0, none
+    if np.mean(d[off] > 0) < 0.5:
+        plane, d = plane.flipped(), -d
+    if np.mean(d[off] > 0) < 0.95:
+        return None, 0.0, none
+    if viewpoint is not None and plane.distance(viewpoint[None])[0] < 0:
+        return None, 0.0, none
+    # Footprint: the objects, projected into the plane, well inside the inliers' extent.
+    n = plane.normal
+    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(n, u)
+    uv_in = points[inl] @ np.column_stack([u, w])
+    uv_off = points[off] @ np.column_stack([u, w])
+    lo, hi = uv_in.min(axis=0), uv_in.max(axis=0)
+    margin = 0.05 * (hi - lo) + 2 * spacing
+    inside = np.all((uv_off > lo + margin) & (uv_off < hi - margin), axis=1)
+    if inside.mean() < 0.9:
+        return None, 0.0, none
+    return plane, float(band), inl
+
+
+def batch_explained(
+    model_points: FloatArray,
+    matrices: FloatArray,
+    scene_tree: cKDTree,
+    distance: float,
+) -> NDArray[np.intp]:
+    """(K,) for each of K poses, how many of the model samples land within ``distance`` of a
+    scene point (one k-d tree query of all K x M transformed samples).
+
+    Args:
+        model_points: (M, 3) model samples (model frame), e.g. a few hundred.
+        matrices: (K, 4, 4) model -> scene poses.
+        scene_tree: k-d tree of the scene points.
+        distance: match distance.
+    """
+    T = np.asarray(matrices, dtype=np.float64).reshape(-1, 4, 4)
+    if len(T) == 0:
+        return np.zeros(0, dtype=np.intp)
+    moved = np.einsum("kij,mj->kmi", T[:, :3, :3], model_points) + T[:, None, :3, 3]
+    d, _ = scene_tree.query(moved.reshape(-1, 3), distance_upper_bound=distance)
+    return np.asarray(np.isfinite(d).reshape(len(T), -1).sum(axis=1), dtype=np.intp)
+
+
+@dataclass(frozen=True)
+class Consistency:
+    """The scene-consistency check of one posed model.
+
+    Attributes:
+        explained: sensed points within ``d`` of the model's visible surface.
+        inside: points inside the model solid by more than ``d`` (seen through it).
+        below: points under the model in their vertical column (could not have been seen).
+        penetration: fraction of the model surface below the table by more than ``d``.
+        ok: explained >= 30, inside + below <= 5 % of explained, penetration <= 2 %.
+    """
+
+    explained: int
+    inside: int
+    below: int
+    penetration: float
+    ok: bool
+
+    def __getitem__(self, key: str) -> Any:
+        """Dictionary-style access (``check["ok"]``) for reports."""
+        return getattr(self, key)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The fields as a JSON-ready dict."""
+        return asdict(self)
+
+
+def consistency(
+    T: FloatArray,
+    surface_pts: FloatArray,
+    surface_nrm: FloatArray,
+    cloud: FloatArray,
+    table: Plane | None,
+    d: float,
+    cloud_tree: cKDTree | None = None,
+) -> Consistency:
+    """Does the posed model (``T`` model -> world) agree with what the sensors saw?
+
+    Counts, over the sensed points near the posed model: ``explained`` (within ``d`` of its
+    surface facing the sensors), ``inside`` (inside the model solid by more than ``d``) and
+    ``below`` (under the model in their vertical column: the overhead and oblique sensors
+    could not have seen them); ``penetration``: fraction of the model surface below the
+    table plane by more than ``d``.
+    """
+    R, t = T[:3, :3], T[:3, 3]
+    P = surface_pts @ R.T + t
+    N = surface_nrm @ R.T
+    # Only surface the sensors (all above the table) can see explains a point: a downward
+    # face resting on the table would otherwise "explain" the table under a wrong pose.
+    seen = N[:, 2] > -0.3
+    centre = P.mean(axis=0)
+    radius = float(np.max(np.linalg.norm(P - centre, axis=1)))
+    if cloud_tree is not None:
+        near = cloud[cloud_tree.query_ball_point(centre, r=radius + 2 * d)]
+    else:
+        near = cloud[np.linalg.norm(cloud - centre, axis=1) <= radius + 2 * d]
+    explained_n = inside_n = below_n = 0
+    penetration = 0.0
+    if table is not None:
+        penetration = float(np.mean(table.distance(P) < -d))
+    if len(near):
+        dist, idx = cKDTree(P).query(near)
+        dist_seen = cKDTree(P[seen]).query(near)[0] if seen.any() else np.full(len(near), np.inf)
+        explained = dist_seen <= d
+        sd = np.einsum("ij,ij->i", near - P[idx], N[idx])
+        sd[dist <= d] = 0.0  # on the surface (a visible or a resting face): not inside
+        inside = (~explained) & (sd < -d)
+        rest = np.flatnonzero(~explained & ~inside)
+        below = np.zeros(len(near), dtype=bool)
+        if len(rest):
+            tree2 = cKDTree(P[:, :2])
+            # radius d/2 and two model points: sensor noise along the silhouette edges
+            # (stereo) does not count, a point well inside the footprint does
+            cols = tree2.query_ball_point(near[rest, :2], r=0.5 * d)
+            zq = near[rest, 2]
+            for j, c in enumerate(cols):
+                if len(c) >= 2 and np.sort(P[c, 2])[-2] > zq[j] + 2 * d:
+                    below[rest[j]] = True
+        explained_n, inside_n, below_n = int(explained.sum()), int(inside.sum()), int(below.sum())
+    bad = inside_n + below_n
+    ok = bool(explained_n >= 30 and bad <= 0.05 * max(explained_n, 1) and penetration <= 0.02)
+    return Consistency(explained_n, inside_n, below_n, penetration, ok)
+
+
+def rank(
+    candidates: list[PoseHypothesis], checks: list[Consistency]
+) -> tuple[list[int], list[PoseHypothesis]]:
+    """Candidate order (consistent first, then most points explained, then score) and the
+    consistent candidates in that order."""
+    order = sorted(
+        range(len(checks)),
+        key=lambda i: (not checks[i].ok, -checks[i].explained, -candidates[i].score),
+    )
+    return order, [candidates[i] for i in order if checks[i].ok]
