@@ -427,6 +427,9 @@ def parse_dataclass(cls: type[D], table: Any, where: Where, field: str = "params
     type (``int``, ``float``, ``bool``, ``str``, ``Literal``, ``tuple[...]``, ``X | None``) and
     the constraints of :func:`param`; a missing key takes the field's default.
 
+    A ``__post_init__`` may check across fields by raising ``ValueError(field, expected,
+    got)`` (three arguments: the message is built in the one format) or ``ValueError(text)``.
+
     Raises:
         SpecError: in the one message format, e.g. ``field 'params.m': expected a number >= 1,
             got 0``.
@@ -446,8 +449,10 @@ def parse_dataclass(cls: type[D], table: Any, where: Where, field: str = "params
                 raise where.error(path, f"a value ({_type_name(hints[name])})", MISSING)
             continue
         kwargs[name] = _convert(table[name], hints[name], path, where, f.metadata)
-    with located(where.at(field) if field else where):
-        try:
-            return cls(**kwargs)
-        except ValueError as exc:  # __post_init__ cross-field checks
-            raise SpecError(str(exc)) from None
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:  # a cross-field check in __post_init__
+        if len(exc.args) == 3:  # ValueError(field, expected, got): the one format
+            sub, expected, got = exc.args
+            raise where.error(f"{field}.{sub}" if field else sub, expected, got) from None
+        raise where.at(field).fail(str(exc)) from None

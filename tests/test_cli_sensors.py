@@ -98,8 +98,8 @@ def test_check_good_file_in_its_own_folder(capsys: pytest.CaptureFixture[str]) -
 @pytest.mark.parametrize(
     ("name", "match"),
     [
-        ("bad_low.toml", "sensor 'Range_Points': output[2].low: expected a number, got 'abc'"),
-        ("unknown_program.toml", "program: unknown program 'no_such_program'"),
+        ("bad_low.toml", "sensor 'Range_Points': field 'output[2].low': expected a number, got 'abc'"),
+        ("unknown_program.toml", "field 'program': expected one of the programs"),
         ("bad_toml.toml", "line 4, column 1: malformed TOML"),
     ],
 )
@@ -126,7 +126,8 @@ def test_check_unknown_input_against_installed_devices(
     )
     assert main(["sensors", "--check", str(path)]) == 2
     err = capsys.readouterr().err
-    assert f"{path}: sensor 'Test_Cam_Points': inputs[0]: unknown input 'cam'" in err
+    assert f"{path}: sensor 'Test_Cam_Points': field 'inputs[0]': expected a logical" in err
+    assert "got 'cam'" in err
     assert "'range_finder'" in err  # the valid options are listed
 
 

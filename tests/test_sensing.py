@@ -14,7 +14,7 @@ import pytest
 from mks_sim.errors import DataError, DeviceFailure, NotFound, SensorFailure, SpecError
 from mks_sim.fields import Field, OutputVector
 from mks_sim.sensing import (
-    PROGRAM_MODULES,
+    PROGRAMS,
     AlternateSpec,
     SensorGraph,
     SensorSpec,
@@ -24,7 +24,6 @@ from mks_sim.sensing import (
     register_acceptance,
     register_program,
 )
-from mks_sim.sensing import registry as registry_module
 
 ASSETS = Path(__file__).parent / "assets" / "sensors"
 GOOD = ASSETS / "good"
@@ -145,65 +144,87 @@ BAD_CASES = [
     ("bad_toml.toml", r"bad_toml\.toml: line 4, column 1: malformed TOML"),
     (
         "bad_low.toml",
-        r"bad_low\.toml: sensor 'Range_Points': output\[2\]\.low: expected a number, got 'abc'",
+        r"bad_low\.toml: sensor 'Range_Points': field 'output\[2\]\.low': expected a number, "
+        r"got 'abc'",
     ),
     (
         "bad_policy.toml",
-        r"bad_policy\.toml: sensor 'Range_Points': output\[0\]\.policy: expected one of "
+        r"bad_policy\.toml: sensor 'Range_Points': field 'output\[0\]\.policy': expected one of "
         r"\['reject', 'clip', 'flag'\], got 'drop'",
     ),
     (
         "missing_output.toml",
-        r"missing_output\.toml: sensor 'No_Output': output: expected a non-empty list.*"
+        r"missing_output\.toml: sensor 'No_Output': field 'output': expected a non-empty list.*"
         r"got nothing \(missing\)",
     ),
-    ("unknown_key.toml", r"unknown_key\.toml: sensor 'Typo': programme: unknown key"),
+    (
+        "unknown_key.toml",
+        r"unknown_key\.toml: sensor 'Typo': expected only the keys \[.*'program'.*\], "
+        r"got 'programme'",
+    ),
     (
         "unknown_field_key.toml",
-        r"unknown_field_key\.toml: sensor 'Typo_Field': output\[0\]\.hihg: unknown key",
+        r"unknown_field_key\.toml: sensor 'Typo_Field': field 'output\[0\]': expected only the "
+        r"keys \[.*'high'.*\], got 'hihg'",
     ),
     (
         "unknown_input.toml",
-        r"unknown_input\.toml: sensor 'Lidar_Points': inputs\[0\]: unknown input 'lidar'; "
-        r"expected a logical sensor or a declared device \(devices: \['cam'",
+        r"unknown_input\.toml: sensor 'Lidar_Points': field 'inputs\[0\]': expected a logical "
+        r"sensor or a declared device \(devices: \['cam'.*got 'lidar'",
     ),
     (
         "unknown_program.toml",
-        r"unknown_program\.toml: sensor 'Magic': program: unknown program "
-        r"'no_such_program'; registered programs: \[.*'passthrough'",
+        r"unknown_program\.toml: sensor 'Magic': field 'program': expected one of the programs "
+        r"\[.*'passthrough'.*\], got 'no_such_program'",
     ),
     (
         "unknown_alternate_program.toml",
-        r"sensor 'Range_Points': alternate 'Stereo_Points': program: unknown program "
-        r"'no_such_stereo'",
+        r"sensor 'Range_Points': alternate 'Stereo_Points': field 'program': expected one of "
+        r"the programs \[.*\], got 'no_such_stereo'",
     ),
     (
         "unknown_acceptance.toml",
-        r"sensor 'Picky': acceptance\.test: unknown acceptance test 'looks_good'",
+        r"sensor 'Picky': field 'acceptance\.test': expected one of the acceptance tests "
+        r"\[.*'min_rows'\], got 'looks_good'",
     ),
     ("cycle.toml", r"cycle\.toml: sensor '[AB]': inputs: cycle of logical sensors (A -> B -> A)"),
     ("alternate_cycle.toml", r"Self_Fallback -> Self_Fallback"),
-    ("duplicate.toml", r"duplicate\.toml: duplicate sensor name\(s\) \['Twice'\]"),
+    (
+        "duplicate.toml",
+        r"duplicate\.toml: expected distinct sensor names, got duplicate\(s\) \['Twice'\]",
+    ),
     (
         "low_above_high.toml",
-        r"sensor 'Upside_Down': output\[0\] \(x\): expected low < high, got low=5, high=1",
+        r"sensor 'Upside_Down': field 'output\[0\]': expected low < high \(x\), got low=5, high=1",
     ),
     (
         "single_table.toml",
-        r"single_table\.toml: sensor: expected an array of tables.*\[\[sensor\]\]",
+        r"single_table\.toml: field 'sensor': expected an array of tables.*\[\[sensor\]\]",
     ),
     (
         "inputs_not_list.toml",
-        r"sensor 'Scalar_Inputs': inputs: expected a list of device or sensor names, got 'ranger'",
+        r"sensor 'Scalar_Inputs': field 'inputs': expected a list of device or sensor names, "
+        r"got 'ranger'",
     ),
     (
         "reserved_alternate.toml",
-        r"sensor 'Range_Points': alternate\[0\]\.name: expected a name other than 'primary'",
+        r"sensor 'Range_Points': field 'alternate\[0\]\.name': expected a name other than "
+        r"'primary'",
     ),
     ("sensor_named_like_device.toml", r"sensor 'ranger': name: 'ranger' is already a device"),
-    ("duplicate_field.toml", r"sensor 'Two_X': output: duplicate field name\(s\) \['x'\]"),
-    ("missing_name.toml", r"missing_name\.toml: sensor\[0\]: name: expected a non-empty string"),
-    ("unknown_top_level.toml", r"unknown_top_level\.toml: sensors: unknown top-level key"),
+    (
+        "duplicate_field.toml",
+        r"sensor 'Two_X': field 'output': expected distinct field names, got duplicate\(s\) "
+        r"\['x'\]",
+    ),
+    (
+        "missing_name.toml",
+        r"missing_name\.toml: sensor\[0\]: field 'name': expected a non-empty string",
+    ),
+    (
+        "unknown_top_level.toml",
+        r"unknown_top_level\.toml: expected only the keys \['device', 'sensor'\], got 'sensors'",
+    ),
 ]
 
 
@@ -231,7 +252,7 @@ def test_graph_from_code_specs_and_device_names() -> None:
     spec = SensorSpec("S", ("d",), "passthrough", vec)
     graph = SensorGraph([spec], devices=["d"])
     assert graph.device_names == {"d"} and "S" in graph and len(graph) == 1
-    with pytest.raises(SpecError, match=r"sensor 'S': inputs\[0\]: unknown input 'd'"):
+    with pytest.raises(SpecError, match=r"sensor 'S': field 'inputs\[0\]': expected .* got 'd'"):
         SensorGraph([spec], devices=["e"])
 
 
@@ -497,7 +518,16 @@ def test_sensor_level_acceptance_applies_to_alternates() -> None:
 def test_kernel_program_parameter_errors() -> None:
     spec = SensorSpec("Sel", ("In",), "select_fields", VEC1)
     inner = SensorSpec("In", ("d",), "passthrough", VEC1)
-    snap = SensorGraph([inner, spec], devices=["d"]).snapshot({"d": FakeDevice("d", [[1.0]])})
+    # params are checked against the program's dataclass when the graph is built ...
+    with pytest.raises(SpecError, match=r"sensor 'Sel': field 'params.fields': expected a value"):
+        SensorGraph([inner, spec], devices=["d"])
+    bad_type = SensorSpec("In", ("d",), "passthrough", VEC1, params={"key": 3})
+    with pytest.raises(SpecError, match=r"field 'params.key': expected a string, got 3"):
+        SensorGraph([bad_type], devices=["d"])
+    # ... and a program called directly (no graph) still names what is missing.
+    snap = SensorGraph([inner, spec], devices=["d"], check_programs=False).snapshot(
+        {"d": FakeDevice("d", [[1.0]])}
+    )
     with pytest.raises(SpecError, match=r"program 'select_fields': params\.fields: expected"):
         snap.get("Sel")
 
@@ -515,15 +545,23 @@ def test_constant_and_passthrough_key() -> None:
 # --------------------------------------------------------------------------- registry
 
 
-def test_registry_lists_program_modules_and_kernel_programs() -> None:
-    assert PROGRAM_MODULES[:3] == (
-        "mks_sim.sensing.programs.kernel",
-        "mks_sim.sensing.programs.vision",
-        "mks_sim.sensing.programs.points",
-    )
+def test_registry_is_one_table_of_entry_points() -> None:
+    assert PROGRAMS.entry_point("passthrough") == "mks_sim.sensing.programs.kernel:passthrough"
+    assert PROGRAMS.entry_point("range_points") == "mks_sim.sensing.programs.points:range_points"
     assert {"passthrough", "select_fields", "concat", "merge", "constant"} <= set(program_names())
-    with pytest.raises(NotFound, match=r"unknown program 'nope'; registered programs: \["):
+    with pytest.raises(NotFound, match=r"unknown program 'nope'; known programs: \["):
         get_program("nope")
+
+
+def test_program_names_import_nothing() -> None:
+    code = (
+        "import sys; from mks_sim.sensing import program_names; program_names(); "
+        "print('mks_sim.sensing.programs.points' in sys.modules, 'cv2' in sys.modules)"
+    )
+    import subprocess
+
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "False"]
 
 
 def test_registering_a_name_twice_is_an_error() -> None:
@@ -534,23 +572,22 @@ def test_registering_a_name_twice_is_an_error() -> None:
             return np.zeros((0, 1))
 
 
-def test_missing_program_module_is_skipped_but_broken_import_propagates(
+def test_missing_program_module_is_a_spec_error_but_broken_import_propagates(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     (tmp_path / "mks_test_broken_programs.py").write_text("import mks_no_such_dependency_xyz\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setattr(registry_module, "_loaded", False)
-    monkeypatch.setattr(
-        registry_module,
-        "PROGRAM_MODULES",
-        ("mks_sim.sensing.programs.kernel", "mks_test_does_not_exist_xyz"),
-    )
-    registry_module.load_program_modules()  # the missing module is skipped
-    monkeypatch.setattr(registry_module, "_loaded", False)
-    monkeypatch.setattr(registry_module, "PROGRAM_MODULES", ("mks_test_broken_programs",))
-    with pytest.raises(ModuleNotFoundError, match="mks_no_such_dependency_xyz"):
-        registry_module.load_program_modules()
-    sys.modules.pop("mks_test_broken_programs", None)
+    PROGRAMS.add("t_missing", "mks_test_does_not_exist_xyz:f")
+    PROGRAMS.add("t_broken", "mks_test_broken_programs:f")
+    try:
+        with pytest.raises(SpecError, match="program 't_missing'.*not found"):
+            get_program("t_missing")
+        with pytest.raises(ModuleNotFoundError, match="mks_no_such_dependency_xyz"):
+            get_program("t_broken")
+    finally:
+        PROGRAMS.remove("t_missing")
+        PROGRAMS.remove("t_broken")
+        sys.modules.pop("mks_test_broken_programs", None)
 
 
 def test_data_error_from_bad_stream_inputs() -> None:

@@ -11,20 +11,23 @@ from __future__ import annotations
 from mks_sim.sensing.graph import DEVICES_FILE, SensorGraph, default_devices
 from mks_sim.sensing.loader import SensorFile, load_file
 from mks_sim.sensing.registry import (
-    PROGRAM_MODULES,
+    ACCEPTANCE,
+    PROGRAMS,
     acceptance_names,
     get_acceptance,
     get_program,
     program_names,
     register_acceptance,
     register_program,
+    takes_params,
 )
 from mks_sim.sensing.snapshot import Attempt, Snapshot
 from mks_sim.sensing.spec import AcceptanceSpec, AlternateSpec, DeviceSpec, SensorSpec
 
 __all__ = [
+    "ACCEPTANCE",
     "DEVICES_FILE",
-    "PROGRAM_MODULES",
+    "PROGRAMS",
     "AcceptanceSpec",
     "AlternateSpec",
     "Attempt",
@@ -41,4 +44,5 @@ __all__ = [
     "program_names",
     "register_acceptance",
     "register_program",
+    "takes_params",
 ]

@@ -18,8 +18,9 @@ from typing import TYPE_CHECKING
 from mks_sim.errors import NotFound, SpecError
 from mks_sim.resources import data_dir
 from mks_sim.sensing.loader import load_file
-from mks_sim.sensing.registry import acceptance_names, program_names
-from mks_sim.sensing.spec import DeviceSpec, SensorSpec
+from mks_sim.sensing.registry import ACCEPTANCE, PROGRAMS, params_type
+from mks_sim.sensing.spec import PRIMARY, DeviceSpec, SensorSpec
+from mks_sim.specs import Where, parse_dataclass
 
 if TYPE_CHECKING:
     from mks_sim.devices.base import Device
@@ -42,8 +43,9 @@ def default_devices() -> tuple[DeviceSpec, ...]:
     return load_file(path).devices
 
 
-def _where(spec: SensorSpec, way: str) -> str:
-    return spec.where if way == "primary" else f"{spec.where}: alternate {way!r}"
+def _where(spec: SensorSpec, way: str) -> Where:
+    where = Where(spec.file, "sensor", spec.name)
+    return where if way == PRIMARY else where.entry_of("alternate", way)
 
 
 class SensorGraph:
@@ -150,28 +152,36 @@ class SensorGraph:
             for way in (spec.primary, *spec.alternates):
                 for i, name in enumerate(way.inputs):
                     if name not in self._sensors and name not in self._devices:
-                        raise SpecError(
-                            f"{_where(spec, way.name)}: inputs[{i}]: unknown input {name!r}; "
-                            "expected a logical sensor or a declared device (devices: "
-                            f"{sorted(self._devices)}; sensors: {sorted(self._sensors)})"
+                        raise _where(spec, way.name).error(
+                            f"inputs[{i}]",
+                            "a logical sensor or a declared device (devices: "
+                            f"{sorted(self._devices)}; sensors: {sorted(self._sensors)})",
+                            name,
                         )
 
     def _check_programs(self) -> None:
-        programs = set(program_names())
-        tests = set(acceptance_names())
+        """Every program and acceptance test exists, and their params fit their dataclass."""
         for spec in self._sensors.values():
             for way in (spec.primary, *spec.alternates):
                 where = _where(spec, way.name)
-                if way.program not in programs:
-                    raise SpecError(
-                        f"{where}: program: unknown program {way.program!r}; registered "
-                        f"programs: {sorted(programs)}"
+                if way.program not in PROGRAMS:
+                    raise where.error(
+                        "program", f"one of the programs {PROGRAMS.names()}", way.program
                     )
-                if way.acceptance is not None and way.acceptance.test not in tests:
-                    raise SpecError(
-                        f"{where}: acceptance.test: unknown acceptance test "
-                        f"{way.acceptance.test!r}; registered tests: {sorted(tests)}"
+                cls = params_type(PROGRAMS.get(way.program))
+                if cls is not None:
+                    parse_dataclass(cls, way.params, where, "params")
+                if way.acceptance is None:
+                    continue
+                if way.acceptance.test not in ACCEPTANCE:
+                    raise where.error(
+                        "acceptance.test",
+                        f"one of the acceptance tests {ACCEPTANCE.names()}",
+                        way.acceptance.test,
                     )
+                cls = params_type(ACCEPTANCE.get(way.acceptance.test))
+                if cls is not None:
+                    parse_dataclass(cls, way.acceptance.params, where, "acceptance.params")
 
     def _check_cycles(self) -> None:
         state: dict[str, int] = {}  # 1 = on the current path, 2 = done

@@ -19,6 +19,7 @@ Acceptance tests (``acceptance = { test = "...", params = {...} }``): ``min_rows
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -26,9 +27,57 @@ from numpy.typing import NDArray
 
 from mks_sim.errors import SensorFailure, SpecError
 from mks_sim.fields import Stream, merge_streams
-from mks_sim.sensing.registry import register_acceptance, register_program
+from mks_sim.sensing.registry import takes_params
+from mks_sim.specs import param
 
-__all__: list[str] = []
+__all__ = [
+    "ConstantParams",
+    "MaxParams",
+    "MinParams",
+    "NoParams",
+    "PassthroughParams",
+    "SelectFieldsParams",
+]
+
+
+@dataclass(frozen=True)
+class NoParams:
+    """Params of a program that takes none (any key is an error)."""
+
+
+@dataclass(frozen=True)
+class PassthroughParams:
+    """``passthrough``: ``key`` picks an entry of a dict-like device reading."""
+
+    key: str | None = None
+
+
+@dataclass(frozen=True)
+class SelectFieldsParams:
+    """``select_fields``: the field names to keep, in output order."""
+
+    fields: tuple[str, ...] = param()
+
+
+@dataclass(frozen=True)
+class ConstantParams:
+    """``constant``: the rows of the table."""
+
+    rows: tuple[tuple[float, ...], ...] = param()
+
+
+@dataclass(frozen=True)
+class MinParams:
+    """Acceptance test ``min_rows``: ``min``, a number >= 0."""
+
+    min: float = param(low=0.0)
+
+
+@dataclass(frozen=True)
+class MaxParams:
+    """Acceptance tests ``max_rows`` and the fractions: ``max``, a number >= 0."""
+
+    max: float = param(low=0.0)
 
 
 def _param(
@@ -64,7 +113,7 @@ def _single(inputs: Mapping[str, Any], program: str) -> tuple[str, Any]:
     return next(iter(inputs.items()))
 
 
-@register_program("passthrough")
+@takes_params(PassthroughParams)
 def passthrough(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> NDArray[np.float64]:
     """The single input as an (N, n) float table (``params.key`` selects a dict entry)."""
     name, value = _single(inputs, "passthrough")
@@ -76,7 +125,7 @@ def passthrough(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> NDArray
     return _table(value, name)
 
 
-@register_program("select_fields")
+@takes_params(SelectFieldsParams)
 def select_fields(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> NDArray[np.float64]:
     """Columns ``params.fields`` of the single input stream, in that order."""
     name, value = _single(inputs, "select_fields")
@@ -86,7 +135,7 @@ def select_fields(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> NDArr
     return value.select(list(fields)).data
 
 
-@register_program("concat")
+@takes_params(NoParams)
 def concat(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> NDArray[np.float64]:
     """Every input stacked row-wise (equal widths, no coercion)."""
     del params
@@ -100,7 +149,7 @@ def concat(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> NDArray[np.f
     return np.concatenate(tables, axis=0)
 
 
-@register_program("merge")
+@takes_params(NoParams)
 def merge(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> Stream:
     """``merge_streams`` of every input stream (coercion to the coarsest field, provenance)."""
     del params
@@ -112,7 +161,7 @@ def merge(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> Stream:
     return merge_streams(streams)
 
 
-@register_program("constant")
+@takes_params(ConstantParams)
 def constant(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> NDArray[np.float64]:
     """``params.rows`` as an (N, n) table."""
     del inputs
@@ -135,14 +184,14 @@ def _limit(params: Mapping[str, Any], name: str, test: str) -> float:
     return float(value)
 
 
-@register_acceptance("min_rows")
+@takes_params(MinParams)
 def min_rows(stream: Stream, params: Mapping[str, Any]) -> str | None:
     """Reject fewer than ``params.min`` rows."""
     low = _limit(params, "min", "min_rows")
     return f"{len(stream)} rows, expected at least {low:g}" if len(stream) < low else None
 
 
-@register_acceptance("max_rows")
+@takes_params(MaxParams)
 def max_rows(stream: Stream, params: Mapping[str, Any]) -> str | None:
     """Reject more than ``params.max`` rows."""
     high = _limit(params, "max", "max_rows")
@@ -153,7 +202,7 @@ def _fraction(count: int, total: int) -> float:
     return count / total if total else 0.0
 
 
-@register_acceptance("max_nan_fraction")
+@takes_params(MaxParams)
 def max_nan_fraction(stream: Stream, params: Mapping[str, Any]) -> str | None:
     """Reject when more than ``params.max`` of the values are NaN (only ``flag`` fields can
     keep NaN after validation)."""
@@ -162,7 +211,7 @@ def max_nan_fraction(stream: Stream, params: Mapping[str, Any]) -> str | None:
     return f"NaN fraction {frac:.3g} > {high:g}" if frac > high else None
 
 
-@register_acceptance("max_flagged_fraction")
+@takes_params(MaxParams)
 def max_flagged_fraction(stream: Stream, params: Mapping[str, Any]) -> str | None:
     """Reject when more than ``params.max`` of the values are flagged."""
     high = _limit(params, "max", "max_flagged_fraction")
@@ -171,7 +220,7 @@ def max_flagged_fraction(stream: Stream, params: Mapping[str, Any]) -> str | Non
     return f"flagged fraction {frac:.3g} > {high:g}" if frac > high else None
 
 
-@register_acceptance("max_dropped_fraction")
+@takes_params(MaxParams)
 def max_dropped_fraction(stream: Stream, params: Mapping[str, Any]) -> str | None:
     """Reject when validation dropped more than ``params.max`` of the rows produced."""
     high = _limit(params, "max", "max_dropped_fraction")

@@ -34,17 +34,121 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
+from dataclasses import dataclass
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, Literal
 
 import cv2
 import numpy as np
 
 from mks_sim.errors import DataError, SensorFailure
 from mks_sim.fields import Stream
-from mks_sim.sensing import register_program
+from mks_sim.sensing.registry import takes_params
+from mks_sim.specs import param
 
 logger = logging.getLogger(__name__)
+
+
+# --- params (validated against the sensor files at load; programs read the mapping) -------
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class SourceParams:
+    """Params every point source takes: the work region and the voxel thinning."""
+
+    crop_min: Vec3 | None = None
+    crop_max: Vec3 | None = None
+    voxel_m: float = param(0.0, low=0.0)
+
+
+@dataclass(frozen=True)
+class StereoParams(SourceParams):
+    """``stereo_points``: StereoSGBM settings and the depth limit."""
+
+    num_disparities: int = param(128, low=16)
+    block_size: int = param(5, low=1)
+    min_disparity: int = 0
+    uniqueness: int = param(10, low=0)
+    speckle_window: int = param(100, low=0)
+    max_depth_m: float | None = param(None, low=0.0, low_open=True)
+
+    def __post_init__(self) -> None:
+        if self.num_disparities % 16:
+            raise ValueError("num_disparities", "a multiple of 16", self.num_disparities)
+
+
+@dataclass(frozen=True)
+class DepthParams(SourceParams):
+    """``depth_points``: keep every ``stride``-th pixel."""
+
+    stride: int = param(1, low=1)
+
+
+@dataclass(frozen=True)
+class TableParams:
+    """The table plane (a sensor parameter) and the object separation on the SPG."""
+
+    table_z_m: float = 0.0
+    table_margin_m: float = param(0.004, low=0.0)
+    min_object_points: int = param(30, low=1)
+    m: int = param(12, low=1)
+    gap_m: float = param(0.01, low=0.0, low_open=True)
+
+
+@dataclass(frozen=True)
+class SegmentParams(TableParams):
+    """Surface segmentation (``segment_surfaces``) of each object."""
+
+    curvature_threshold: float | None = param(None, low=0.0)
+    angle_deg: float | None = param(None, low=0.0, high=180.0, low_open=True)
+    min_points: int | None = param(None, low=1)
+    seeds: Literal["planar", "all"] | None = None
+
+
+@dataclass(frozen=True)
+class CurvatureParams:
+    """``surface_curvature``."""
+
+    drop_table: bool = True
+    table_z_m: float = 0.0
+    table_margin_m: float = param(0.004, low=0.0)
+    curvature_threshold: float | None = param(None, low=0.0)
+    m: int = param(12, low=1)
+
+
+@dataclass(frozen=True)
+class VertexParams(SegmentParams):
+    """``vertex_detector``: plane-triple vertexes."""
+
+    vertex_tolerance_m: float = param(0.0, low=0.0)
+    min_angle_deg: float = param(30.0, low=0.0, high=90.0)
+
+
+@dataclass(frozen=True)
+class ControlPointParams(VertexParams):
+    """``control_point_detector``."""
+
+    up_tolerance_deg: float = param(20.0, low=0.0, high=90.0)
+    outline_corners: bool = True
+    merge_m: float = param(0.0, low=0.0)
+
+
+@dataclass(frozen=True)
+class SphereParams(SegmentParams):
+    """``sphere_detector``."""
+
+    min_radius_m: float = param(0.005, low=0.0)
+    max_radius_m: float = param(0.2, low=0.0, low_open=True)
+    max_rmse_ratio: float = param(0.1, low=0.0)
+
+
+@dataclass(frozen=True)
+class TouchParams:
+    """``touch_contacts``."""
+
+    min_pressure_pa: float = param(500.0, low=0.0)
 
 
 # --- helpers ---------------------------------------------------------------------------------
@@ -77,6 +181,30 @@ def _stream_points(inputs: Mapping[str, Any], program: str) -> np.ndarray:
         raise SensorFailure(program, f"expected (N, >=3) points, got shape {data.shape}")
     pts = data[:, :3]
     return pts[np.isfinite(pts).all(axis=1)]
+
+
+def _representation(inputs: Mapping[str, Any], params: Mapping[str, Any], program: str) -> Any:
+    """The shared low-level representation of the input point stream, built at most once per
+    stream (k-d tree, table, SPG, normals, segmentation: ``mks_sim.localization``)."""
+    from mks_sim.localization.representation import RepresentationConfig, representation_of
+
+    if len(inputs) != 1:
+        raise SensorFailure(program, f"expected one point-stream input, got {sorted(inputs)}")
+    value = next(iter(inputs.values()))
+    data = value.data if isinstance(value, Stream) else np.asarray(value, dtype=float)
+    if data.ndim != 2 or data.shape[1] < 3 or len(data) < 10:
+        raise SensorFailure(program, f"expected (N >= 10, >=3) points, got shape {data.shape}")
+    table_z = params.get("table_z_m")
+    config = RepresentationConfig(
+        table_z_m=None if table_z is None else float(table_z),
+        table_margin_m=float(params.get("table_margin_m", 0.003)),
+        gap_m=float(params.get("gap_m", 0.012)),
+        m=int(params.get("m", 12)),
+    )
+    try:
+        return representation_of(data, config)
+    except DataError as exc:
+        raise SensorFailure(program, str(exc)) from exc
 
 
 def _object_clouds(pts: np.ndarray, params: Mapping[str, Any]) -> list[np.ndarray]:
@@ -117,7 +245,7 @@ def _segment(cloud: np.ndarray, params: Mapping[str, Any]) -> Any:
 # --- point sources ---------------------------------------------------------------------------
 
 
-@register_program("range_points")
+@takes_params(SourceParams)
 def range_points(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
     """(N, 3) hit points of every range-finder view (``list[RangeScan]`` inputs)."""
     chunks = []
@@ -201,7 +329,7 @@ def stereo_to_points(sf: Any, params: Mapping[str, Any]) -> np.ndarray:
     return pts[xyz_rect[:, 2] <= max_depth]
 
 
-@register_program("stereo_points")
+@takes_params(StereoParams)
 def stereo_points(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
     """(N, 3) world points from the stereo pair (two ``CameraFrame`` s or a ``StereoFrame``)."""
     pts = postprocess(stereo_to_points(_frames(inputs), params), params)
@@ -226,7 +354,7 @@ def depth_to_points(frame: Any, stride: int = 1) -> np.ndarray:
     return np.c_[x, y, z] @ T[:3, :3].T + T[:3, 3]
 
 
-@register_program("depth_points")
+@takes_params(DepthParams)
 def depth_points(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
     """(N, 3) world points from one depth camera reading."""
     frames = [v for v in inputs.values() if hasattr(v, "depth")]
@@ -243,40 +371,44 @@ def depth_points(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.nda
 # --- descriptions ----------------------------------------------------------------------------
 
 
-@register_program("surface_curvature")
+@takes_params(CurvatureParams)
 def surface_curvature(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
     """(N, 4) rows (x, y, z, curvature code +1 / -1) of the object points (table dropped)."""
     from mks_sim.lowlevel.grouping import curvature_code, estimate_normals
 
-    pts = _stream_points(inputs, "surface_curvature")
-    if params.get("drop_table", True):
-        table_z = float(params.get("table_z_m", 0.0))
-        pts = pts[pts[:, 2] > table_z + float(params.get("table_margin_m", 0.004))]
-    if len(pts) < 4:
-        raise SensorFailure("surface_curvature", f"expected >= 4 object points, got {len(pts)}")
     kw = {"threshold": params["curvature_threshold"]} if "curvature_threshold" in params else {}
-    sn = estimate_normals(pts, m=int(params.get("m", 12)))
-    return np.c_[pts, curvature_code(sn.curvature, **kw).astype(float)]
+    if params.get("drop_table", True):
+        rep = _representation(inputs, params, "surface_curvature")
+        pts = rep.objects
+        if len(pts) < 4:
+            raise SensorFailure(
+                "surface_curvature", f"expected >= 4 object points, got {len(pts)}"
+            )
+        curvature = rep.normals.curvature
+    else:
+        pts = _stream_points(inputs, "surface_curvature")
+        if len(pts) < 4:
+            raise SensorFailure("surface_curvature", f"expected >= 4 points, got {len(pts)}")
+        curvature = estimate_normals(pts, m=int(params.get("m", 12))).curvature
+    return np.c_[pts, curvature_code(curvature, **kw).astype(float)]
 
 
-def object_vertexes(cloud: np.ndarray, params: Mapping[str, Any]) -> Any:
-    """:class:`~mks_sim.lowlevel.grouping.Vertexes` of one object cloud and its segmentation."""
-    from mks_sim.lowlevel.grouping import plane_vertexes
-
-    seg = _segment(cloud, params)
-    tol = float(params.get("vertex_tolerance_m", 0.0)) or 4.0 * max(seg.spacing, 1e-4)
-    verts = plane_vertexes(
-        seg.planes, cloud, extra_planes=[_table_plane(params)], tolerance=tol,
+def object_vertexes(rep: Any, component: np.ndarray, params: Mapping[str, Any]) -> Any:
+    """(Vertexes, planar regions) of one object component of a representation (faces of at
+    least ``min_points`` points; the table as the face the object rests on)."""
+    return rep.vertexes_of(
+        component,
+        min_points=int(params.get("min_points") or 20),
         min_angle_deg=float(params.get("min_angle_deg", 30.0)),
-    )  # fmt: skip
-    return verts, seg
+    )
 
 
-@register_program("vertex_detector")
+@takes_params(VertexParams)
 def vertex_detector(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
     """(V, 3) vertexes of every object above the table."""
-    pts = _stream_points(inputs, "vertex_detector")
-    rows = [object_vertexes(c, params)[0].points for c in _object_clouds(pts, params)]
+    rep = _representation(inputs, params, "vertex_detector")
+    comps = rep.components(int(params.get("min_object_points", 30)))
+    rows = [object_vertexes(rep, c, params)[0].points for c in comps]
     return np.concatenate(rows) if rows else np.empty((0, 3))
 
 
@@ -319,7 +451,7 @@ def outline_corners(
     return c + convex[:, :1] * e1 + convex[:, 1:] * e2
 
 
-@register_program("control_point_detector")
+@takes_params(ControlPointParams)
 def control_point_detector(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
     """(C, 3) candidate control points of the industrial part.
 
@@ -330,13 +462,15 @@ def control_point_detector(inputs: Mapping[str, Any], params: Mapping[str, Any])
     (:func:`outline_corners`, within about one sampling spacing) are added where no vertex
     lies within ``merge_m`` (default 3 spacings). The Hough matcher labels the candidates.
     """
-    pts = _stream_points(inputs, "control_point_detector")
+    rep = _representation(inputs, params, "control_point_detector")
     up_cos = np.cos(np.deg2rad(float(params.get("up_tolerance_deg", 20.0))))
     wall_sin = np.sin(np.deg2rad(float(params.get("up_tolerance_deg", 20.0))))
     rows: list[np.ndarray] = []
-    for cloud in _object_clouds(pts, params):
-        verts, seg = object_vertexes(cloud, params)
-        n_regions = len(seg.planes)
+    comps = rep.components(int(params.get("min_object_points", 30)))
+    spacing = max(rep.segmentation.spacing, 1e-6) if comps else rep.spacing
+    for comp in comps:
+        verts, planes = object_vertexes(rep, comp, params)
+        n_regions = len(planes)
         found = []
         for v, faces, normals in zip(verts.points, verts.faces, verts.normals):
             if np.any(faces >= n_regions):  # on the table: a bottom corner
@@ -345,34 +479,35 @@ def control_point_detector(inputs: Mapping[str, Any], params: Mapping[str, Any])
             if (nz >= up_cos).sum() == 1 and (nz <= wall_sin).sum() == 2:
                 found.append(v)
         if params.get("outline_corners", True):
-            merge = float(params.get("merge_m", 0.0)) or 3.0 * seg.spacing
-            for region in seg.planes:
+            merge = float(params.get("merge_m", 0.0)) or 3.0 * spacing
+            for region in planes:
                 if abs(region.normal[2]) < up_cos:
                     continue
-                for corner in outline_corners(cloud[region.indices], region.normal, seg.spacing):
+                pts = rep.objects[region.indices]
+                for corner in outline_corners(pts, region.normal, spacing):
                     if all(np.linalg.norm(corner - f) > merge for f in found):
                         found.append(corner)
         rows.extend(found)
     return np.asarray(rows, dtype=float).reshape(-1, 3)
 
 
-@register_program("sphere_detector")
+@takes_params(SphereParams)
 def sphere_detector(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
     """(S, 4) rows (x, y, z, radius) of spheres fitted to curved regions of the objects."""
-    pts = _stream_points(inputs, "sphere_detector")
+    rep = _representation(inputs, params, "sphere_detector")
     r_min = float(params.get("min_radius_m", 0.005))
     r_max = float(params.get("max_radius_m", 0.2))
     max_rmse = float(params.get("max_rmse_ratio", 0.1))
     rows = []
-    for cloud in _object_clouds(pts, params):
-        for region in _segment(cloud, params).curved:
+    if len(rep.components(int(params.get("min_object_points", 30)))):
+        for region in rep.segmentation.curved:
             s = region.sphere
             if s is not None and r_min <= s.radius <= r_max and s.rmse <= max_rmse * s.radius:
                 rows.append([*s.center, s.radius])
     return np.asarray(rows, dtype=float).reshape(-1, 4)
 
 
-@register_program("touch_contacts")
+@takes_params(TouchParams)
 def touch_contacts(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
     """(N, 4) rows (x, y, z, pressure Pa) of taxels above ``min_pressure_pa`` (default 500)."""
     threshold = float(params.get("min_pressure_pa", 500.0))

@@ -31,29 +31,37 @@ rows with a radius.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
 
 import cv2
 import numpy as np
 
 from mks_sim.errors import DataError, SensorFailure
-from mks_sim.sensing import register_program
+from mks_sim.sensing.registry import params_of, takes_params
+from mks_sim.specs import param
 
-DEFAULTS: dict[str, Any] = {
-    "plane_z_m": 0.0,
-    "polarity": "auto",
-    "blur_px": 3,
-    "open_px": 3,
-    "min_area_px": 30,
-    "min_hole_area_px": 8,
-    "circle_tolerance": 0.04,
-    "circle_pixel_slack": 1.5,
-    "min_shape_px": 8.0,
-    "poly_epsilon": 0.03,
-    "ignore_border": True,
-    "report_all": True,
-}
+
+@dataclass(frozen=True)
+class VisionParams:
+    """Params of ``circle_detector`` and ``corner_holes_detector`` (see the module doc)."""
+
+    plane_z_m: float = 0.0
+    polarity: Literal["auto", "bright", "dark"] = "auto"
+    blur_px: int = param(3, low=0)
+    open_px: int = param(3, low=0)
+    min_area_px: float = param(30, low=0.0)
+    min_hole_area_px: float = param(8, low=0.0)
+    circle_tolerance: float = param(0.04, low=0.0)
+    circle_pixel_slack: float = param(1.5, low=0.0)
+    min_shape_px: float = param(8.0, low=0.0)
+    poly_epsilon: float = param(0.03, low=0.0, low_open=True)
+    ignore_border: bool = True
+    report_all: bool = True
+
+
+#: The defaults of :class:`VisionParams` as a dict (``find_blobs`` merges params over it).
+DEFAULTS: dict[str, Any] = asdict(VisionParams())
 
 
 @dataclass(frozen=True)
@@ -210,20 +218,21 @@ def _circle_radius(blob: Blob) -> float:
     return max(circular_holes) if circular_holes else 0.0
 
 
-@register_program("circle_detector")
+@takes_params(VisionParams)
 def circle_detector(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
     """(N, 3) rows (x, y, radius), metres on the table plane; see the module doc."""
     frame = _camera_input(inputs, "circle_detector")
-    p = {**DEFAULTS, **params}
+    p = asdict(params_of(VisionParams, params, "circle_detector"))
     rows = [(b.x, b.y, _circle_radius(b)) for b in find_blobs(frame, p)]
     if not p["report_all"]:
         rows = [r for r in rows if r[2] > 0]
     return np.asarray(rows, dtype=float).reshape(-1, 3)
 
 
-@register_program("corner_holes_detector")
+@takes_params(VisionParams)
 def corner_holes_detector(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.ndarray:
     """(N, 4) rows (x, y, corners, holes), x, y metres on the table plane."""
     frame = _camera_input(inputs, "corner_holes_detector")
-    rows = [(b.x, b.y, b.corners, b.holes) for b in find_blobs(frame, {**DEFAULTS, **params})]
+    p = asdict(params_of(VisionParams, params, "corner_holes_detector"))
+    rows = [(b.x, b.y, b.corners, b.holes) for b in find_blobs(frame, p)]
     return np.asarray(rows, dtype=float).reshape(-1, 4)
