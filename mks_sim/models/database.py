@@ -9,6 +9,9 @@ loader registered with :func:`register_model_kind`; this module registers ``"fea
 not yet registered makes the database import ``MODEL_KIND_MODULES[kind]`` (default
 ``mks_sim.models.<kind>``) once, so registration happens lazily.
 
+The same files hold ``[[object]]`` entries (what a physical object is: mesh, symmetry,
+physics, kinds); :mod:`mks_sim.models.objects` reads those, this database skips them.
+
 Feature model entry::
 
     [[model]]
@@ -240,6 +243,16 @@ class ModelDatabase:
         return cls.from_files(sorted(folder.glob("*.toml")))
 
     @classmethod
+    def from_dirs(cls, paths: list[Path] | list[str]) -> ModelDatabase:
+        """Load every ``*.toml`` of several folders (e.g. ``objects.models_dirs(...)``)."""
+        files: list[Path] = []
+        for folder in map(Path, paths):
+            if not folder.is_dir():
+                raise NotFound(f"model database: folder not found: {folder}")
+            files += sorted(folder.glob("*.toml"))
+        return cls.from_files(files)
+
+    @classmethod
     def from_files(cls, paths: list[Path] | list[str]) -> ModelDatabase:
         """Load the given model files (duplicate names across files are an error)."""
         models: dict[str, Any] = {}
@@ -251,14 +264,17 @@ class ModelDatabase:
                 raise NotFound(f"model file not found: {p}") from exc
             except tomllib.TOMLDecodeError as exc:
                 raise SpecError(f"{p}: not valid TOML: {exc}") from exc
-            entries = doc.get("model")
-            unknown = set(doc) - {"model"}
+            entries = doc.get("model", [])
+            unknown = set(doc) - {"model", "object"}
             if unknown:
                 raise SpecError(
-                    f"{p}: unknown top-level key(s) {sorted(unknown)}; expected [[model]] entries"
+                    f"{p}: unknown top-level key(s) {sorted(unknown)}; expected [[model]] "
+                    "and [[object]] entries"
                 )
-            if not isinstance(entries, list) or not entries:
-                raise SpecError(f"{p}: expected one or more [[model]] entries, got none")
+            if not isinstance(entries, list) or not (entries or doc.get("object")):
+                raise SpecError(
+                    f"{p}: expected one or more [[model]] entries (or [[object]] entries), got none"
+                )
             for j, entry in enumerate(entries):
                 name = entry.get("name") if isinstance(entry, Mapping) else None
                 if not isinstance(name, str) or not name:
