@@ -108,14 +108,10 @@ class SegmentParams(TableParams):
 
 
 @dataclass(frozen=True)
-class CurvatureParams:
-    """``surface_curvature``."""
+class CurvatureParams(SegmentParams):
+    """``surface_curvature`` (the table and object separation unless ``drop_table = false``)."""
 
     drop_table: bool = True
-    table_z_m: float = 0.0
-    table_margin_m: float = param(0.004, low=0.0)
-    curvature_threshold: float | None = param(None, low=0.0)
-    m: int = param(12, low=1)
 
 
 @dataclass(frozen=True)
