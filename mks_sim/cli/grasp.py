@@ -5,12 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import multiprocessing
 import sys
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 
 from mks_sim.errors import MksError
+from mks_sim.tasks.backends import BACKENDS, EpisodeJob, check_backend
 
 HELP = "grasp an object with the Jaco hand from sensor-based localization (episodes, JSON, video)"
 
@@ -28,42 +27,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print JSON to stdout")
     parser.add_argument("--video", metavar="FILE", help="write the first episode as MP4/GIF")
-
-
-def _episode(job: tuple[str, int, tuple[str, ...]]) -> dict:
-    # Module-level so that spawn-started workers can import and run it.
-    from mks_sim.tasks.episode import run_episode
-
-    obj, seed, faults = job
-    return run_episode(obj, seed, faults).to_json()
+    parser.add_argument(
+        "--backend", choices=BACKENDS, default="local",
+        help="where episodes run: local processes (--workers) or Ray tasks (the 'ray' extra)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--address", metavar="auto|HOST:PORT",
+        help="--backend ray: join this Ray cluster (default: start a local Ray with --workers CPUs)",
+    )  # fmt: skip
 
 
 def run_episodes(
-    obj: str, seeds: Sequence[int], faults: Sequence[str], workers: int, progress: bool = True
+    obj: str,
+    seeds: Sequence[int],
+    faults: Sequence[str],
+    workers: int,
+    progress: bool = True,
+    *,
+    backend: str = "local",
+    address: str | None = None,
 ) -> list[dict]:
-    """Run episodes (in ``workers`` spawn-started processes when > 1), in seed order."""
-    from tqdm import tqdm
+    """Run episodes on ``backend`` (:func:`mks_sim.tasks.backends.run_episodes`), in seed
+    order."""
+    from mks_sim.tasks import backends
 
-    jobs = [(obj, int(s), tuple(faults)) for s in seeds]
-    results: dict[int, dict] = {}
-    bar = tqdm(
-        total=len(jobs), desc=f"grasp {obj}", unit="ep", file=sys.stderr, disable=not progress
-    )
-    try:
-        if workers <= 1:
-            for job in jobs:
-                results[job[1]] = _episode(job)
-                bar.update()
-        else:
-            ctx = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-                futures = {pool.submit(_episode, job): job[1] for job in jobs}
-                for fut in as_completed(futures):
-                    results[futures[fut]] = fut.result()
-                    bar.update()
-    finally:
-        bar.close()
-    return [results[int(s)] for s in seeds]
+    jobs = [EpisodeJob(obj, int(s), tuple(faults)) for s in seeds]
+    return backends.run_episodes(
+        jobs, backend=backend, address=address, workers=workers, progress=progress,
+        desc=f"grasp {obj}",
+    )  # fmt: skip
 
 
 def summary(episodes: list[dict]) -> dict:
@@ -83,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
         raise MksError(f"--episodes: expected >= 1, got {args.episodes}")
     if args.workers < 1:
         raise MksError(f"--workers: expected >= 1, got {args.workers}")
+    check_backend(args.backend, args.address)
     seeds = list(range(args.seed, args.seed + args.episodes))
     faults = tuple(args.fail)
     if args.video:
@@ -90,10 +83,17 @@ def run(args: argparse.Namespace) -> int:
         first = run_episode(args.object, seeds[0], faults, frame_sink=frames.append)
         written = write_video(frames, args.video)
         print(f"video of seed {seeds[0]} ({len(frames)} frames): {written}", file=sys.stderr)
-        rest = run_episodes(args.object, seeds[1:], faults, args.workers) if len(seeds) > 1 else []
+        rest = (
+            run_episodes(args.object, seeds[1:], faults, args.workers,
+                         backend=args.backend, address=args.address)
+            if len(seeds) > 1
+            else []
+        )  # fmt: skip
         episodes = [first.to_json(), *rest]
     else:
-        episodes = run_episodes(args.object, seeds, faults, args.workers)
+        episodes = run_episodes(
+            args.object, seeds, faults, args.workers, backend=args.backend, address=args.address
+        )
     doc = summary(episodes)
     if args.json:
         json.dump(doc, sys.stdout, indent=2)

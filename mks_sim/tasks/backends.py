@@ -1,0 +1,241 @@
+"""Where episodes run: in this process, a local process pool, or Ray tasks.
+
+An episode is a pure function of its job (seed -> result, :func:`mks_sim.tasks.episode.
+run_episode`), so any engine that maps a function over jobs can run a sweep. Two backends:
+
+- ``"local"`` (default): this process for ``workers == 1``, else a spawn-started
+  :class:`~concurrent.futures.ProcessPoolExecutor`. A worker that dies takes the pool with it
+  (``BrokenProcessPool``); the unfinished jobs are resubmitted to a fresh pool.
+- ``"ray"``: one Ray task per job (``ray.remote(max_retries=...)``). Ray re-executes a task
+  whose worker process died; application errors are not retried. ``address=None`` starts a
+  local Ray with ``workers`` CPUs (and shuts it down afterwards); ``"auto"`` or
+  ``"HOST:PORT"`` joins a running cluster (see ``docs/scale.md``). When Ray is already
+  initialised in this process (a test fixture, a notebook) that session is used and left
+  running.
+
+Either way the results come back in job order, one per job: a retried job is counted once.
+
+Example:
+    >>> from mks_sim.tasks.backends import EpisodeJob, run_episodes
+    >>> jobs = [EpisodeJob("sphere", seed) for seed in (0, 1)]
+    >>> results = run_episodes(jobs, backend="local", workers=2)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import sys
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any
+
+from mks_sim.errors import MksError
+
+__all__ = ["BACKENDS", "EpisodeJob", "grasp_episode", "run_episodes", "ray_available"]
+
+logger = logging.getLogger(__name__)
+
+BACKENDS = ("local", "ray")
+#: Re-runs of a job whose worker process died (Ray's own default is 3 as well).
+MAX_RETRIES = 3
+RAY_INSTALL_HINT = "pip install 'mks-sim[ray]'"
+
+EpisodeFn = Callable[[Any], dict]
+
+
+@dataclass(frozen=True)
+class EpisodeJob:
+    """One grasp episode to run.
+
+    Attributes:
+        object: ``cube`` | ``sphere`` | ``part`` (task ``grasp_<object>``).
+        seed: the episode seed.
+        faults: device names failed for the whole episode.
+    """
+
+    object: str
+    seed: int
+    faults: tuple[str, ...] = ()
+
+
+def grasp_episode(job: EpisodeJob) -> dict:
+    """The closed-loop grasp of ``job`` as the CLI's per-episode JSON record.
+
+    Module-level so that spawn-started processes and Ray workers import it by name.
+    """
+    from mks_sim.tasks.episode import run_episode
+
+    return run_episode(job.object, job.seed, job.faults).to_json()
+
+
+def ray_available() -> bool:
+    """Whether ``import ray`` works (the ``ray`` extra is installed)."""
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def check_backend(backend: str, address: str | None = None) -> None:
+    """Validate a backend choice before any episode runs.
+
+    Raises:
+        MksError: unknown backend, ``address`` without Ray, or Ray not installed.
+    """
+    if backend not in BACKENDS:
+        raise MksError(f"--backend: expected one of {BACKENDS}, got {backend!r}")
+    if address is not None and backend != "ray":
+        raise MksError(f"--address: only with --backend ray, got --backend {backend}")
+    if backend == "ray" and not ray_available():
+        raise MksError(f"--backend ray: Ray is not installed; run {RAY_INSTALL_HINT}")
+
+
+def run_episodes(
+    jobs: Sequence[Any],
+    *,
+    fn: EpisodeFn = grasp_episode,
+    backend: str = "local",
+    address: str | None = None,
+    workers: int = 1,
+    max_retries: int = MAX_RETRIES,
+    progress: bool = True,
+    desc: str = "episodes",
+) -> list[dict]:
+    """Run ``fn(job)`` for every job on ``backend``; results in job order.
+
+    Args:
+        jobs: the jobs (picklable; :class:`EpisodeJob` for the default ``fn``).
+        fn: a module-level function ``job -> dict`` (imported by name in the workers).
+        backend: ``"local"`` or ``"ray"``.
+        address: Ray only: None (start a local Ray with ``workers`` CPUs), ``"auto"`` or
+            ``"HOST:PORT"`` of a running cluster.
+        workers: local processes (1 = this process), or the CPUs of a local Ray.
+        max_retries: re-runs of a job whose worker process died.
+        progress: show a tqdm bar on stderr.
+        desc: the bar's label.
+
+    Returns:
+        ``[fn(job) for job in jobs]``, each job counted exactly once.
+
+    Raises:
+        MksError: bad arguments, Ray missing, or a job whose worker died more than
+            ``max_retries`` times. Errors raised by ``fn`` itself propagate.
+    """
+    check_backend(backend, address)
+    if workers < 1:
+        raise MksError(f"workers: expected >= 1, got {workers}")
+    if max_retries < 0:
+        raise MksError(f"max_retries: expected >= 0, got {max_retries}")
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(jobs), desc=desc, unit="ep", file=sys.stderr, disable=not progress)
+    try:
+        if backend == "ray":
+            return _run_ray(jobs, fn, address, workers, max_retries, bar.update)
+        if workers == 1:
+            out = []
+            for job in jobs:
+                out.append(fn(job))
+                bar.update()
+            return out
+        return _run_pool(jobs, fn, workers, max_retries, bar.update)
+    finally:
+        bar.close()
+
+
+def _run_pool(
+    jobs: Sequence[Any],
+    fn: EpisodeFn,
+    workers: int,
+    max_retries: int,
+    tick: Callable[[], Any],
+) -> list[dict]:
+    """Spawn-started process pool; a broken pool is replaced and its unfinished jobs rerun."""
+    ctx = multiprocessing.get_context("spawn")
+    results: dict[int, dict] = {}
+    breaks = 0
+    while len(results) < len(jobs):
+        todo = [i for i in range(len(jobs)) if i not in results]
+        try:
+            with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+                futures: dict[Future, int] = {pool.submit(fn, jobs[i]): i for i in todo}
+                pending = set(futures)
+                while pending:
+                    done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                    broken: BrokenProcessPool | None = None
+                    for fut in done:
+                        exc = fut.exception()
+                        if isinstance(exc, BrokenProcessPool):  # its worker (or another) died
+                            broken = exc
+                            continue
+                        results[futures[fut]] = fut.result()  # fn's own errors propagate
+                        tick()
+                    if broken is not None:
+                        raise broken
+        except BrokenProcessPool as exc:
+            breaks += 1
+            left = len(jobs) - len(results)
+            if breaks > max_retries:
+                raise MksError(
+                    f"local pool: a worker process died {breaks} times "
+                    f"(expected <= max_retries={max_retries}); {left} job(s) unfinished"
+                ) from exc
+            logger.warning(
+                "local pool: a worker process died (%s); rerunning %d unfinished job(s)",
+                exc,
+                left,
+            )
+    return [results[i] for i in range(len(jobs))]
+
+
+def _run_ray(
+    jobs: Sequence[Any],
+    fn: EpisodeFn,
+    address: str | None,
+    workers: int,
+    max_retries: int,
+    tick: Callable[[], Any],
+) -> list[dict]:
+    import ray
+    from ray.exceptions import RayTaskError, WorkerCrashedError
+
+    started = not ray.is_initialized()
+    if started:
+        if address is None:
+            ray.init(num_cpus=workers, include_dashboard=False, logging_level=logging.WARNING)
+        else:
+            try:
+                ray.init(address=address, logging_level=logging.WARNING)
+            except ConnectionError as exc:
+                raise MksError(
+                    f"--address: no Ray cluster reachable at {address!r} ({exc})"
+                ) from exc
+    try:
+        task = ray.remote(num_cpus=1, max_retries=max_retries)(fn)
+        refs = {task.remote(job): i for i, job in enumerate(jobs)}
+        results: dict[int, dict] = {}
+        pending = list(refs)
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            for ref in done:
+                try:
+                    results[refs[ref]] = ray.get(ref)
+                except WorkerCrashedError as exc:
+                    raise MksError(
+                        f"ray: job {refs[ref]} ({jobs[refs[ref]]!r}): its worker died "
+                        f"{max_retries + 1} times (expected <= max_retries={max_retries})"
+                    ) from exc
+                except RayTaskError as exc:
+                    # The episode's own error, as the local backend raises it (an MksError
+                    # keeps its exit code).
+                    cause = exc.cause
+                    raise (cause if isinstance(cause, BaseException) else exc) from None
+                tick()
+        return [results[i] for i in range(len(jobs))]
+    finally:
+        if started:
+            ray.shutdown()
