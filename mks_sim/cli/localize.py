@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from mks_sim.errors import SpecError
+from mks_sim.viz import NullRecorder, Recorder, add_rerun_argument, open_recorder
 
 HELP = "localize the cube, sphere or part from simulated sensors; estimate, truth and error"
 
@@ -43,6 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="devices to fail (e.g. range_finder): their logical sensors use alternates",
     )  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    add_rerun_argument(parser)
 
 
 def check_arguments(scene: str | None, obj: str, fail: Sequence[str]) -> str:
@@ -80,7 +82,11 @@ def _round_matrix(T: np.ndarray | None) -> list[list[float]] | None:
 
 
 def run_trial(
-    obj: str, seed: int, fail: Sequence[str] = (), scene: str | None = None
+    obj: str,
+    seed: int,
+    fail: Sequence[str] = (),
+    scene: str | None = None,
+    recorder: Recorder | None = None,
 ) -> dict[str, Any]:
     """Randomise, sense, localize and evaluate one object; the CLI's JSON record.
 
@@ -89,6 +95,7 @@ def run_trial(
         seed: layout and device-noise seed.
         fail: devices failed for the trial.
         scene: scene name (default: the object's scene).
+        recorder: logs devices, logical sensors, hypotheses and the truth (default: off).
 
     Returns:
         ``{"object", "scene", "seed", "found", "matrix", "truth", "error": {"position_mm",
@@ -105,12 +112,20 @@ def run_trial(
     world = build_world(scene, seed=seed)
     faults = {d: DeviceFaults(failed=True) for d in fail}
     devices = make_devices(world.model, world.data, np.random.default_rng(seed), faults)
+    rec = recorder if recorder is not None else NullRecorder()
+    rec.log_world(world)
     try:
-        result = localize_object(world, obj, devices, rng=np.random.default_rng(seed))
+        result = localize_object(
+            world, obj, rec.tap_devices(devices), rng=np.random.default_rng(seed),
+            graph=rec.tap_graph(None),
+        )  # fmt: skip
+        rec.log_localization(result, world=world)
+        rec.log_camera_views()
     finally:
         devices.close()
     # Evaluation only: the ground truth is read after localization.
     T_true = truth.object_to_world(world, obj)
+    rec.log_truth(obj, T_true, world=world)
     pos_mm: float | None = None
     rot_deg: float | None = None
     if result.found and result.object_to_world is not None:
@@ -175,7 +190,8 @@ def format_text(rec: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     scene = check_arguments(args.scene, args.object, args.fail)
-    rec = run_trial(args.object, int(args.seed), tuple(args.fail), scene)
+    with open_recorder(args.rerun, "mks_sim localize") as recorder:
+        rec = run_trial(args.object, int(args.seed), tuple(args.fail), scene, recorder)
     if args.json:
         out = {k: rec[k] for k in ("object", "found", "matrix", "truth", "error", "provenance")}
         out["time_s"] = rec["time_s"]

@@ -1,0 +1,434 @@
+"""The Rerun recorder: every stage of a run as entities on a timeline of simulated time.
+
+Imported only when ``--rerun`` is given (:func:`mks_sim.viz.spec.open_recorder`). Entity paths
+and their meaning: ``docs/visualization.md``. Timelines: ``sim_time`` (simulated seconds),
+``episode`` (the grasp episode's seed) and ``attempt`` (grasp attempt, 1-based).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import cv2
+import numpy as np
+import rerun as rr
+
+from mks_sim.cli.snapshot import disparity
+from mks_sim.devices.camera import Camera
+from mks_sim.errors import MksError
+from mks_sim.lowlevel.regions import segment_surfaces
+from mks_sim.lowlevel.spg import SpatialProximityGraph
+from mks_sim.sensing import SensorGraph
+from mks_sim.sim import names
+from mks_sim.viz.recorder import DeviceTap, GraphTap, as_matrix
+from mks_sim.viz.scene import (
+    geom_meshes,
+    geom_to_world,
+    object_clouds,
+    object_mesh,
+    transform_segments,
+    wireframe,
+)
+from mks_sim.viz.spec import RerunSpec
+
+__all__ = ["RerunRecorder"]
+
+log = logging.getLogger(__name__)
+
+# One colour per range-finder view / device, and for the marks drawn over the scene.
+_PALETTE = np.array(
+    [[31, 119, 180], [255, 127, 14], [44, 160, 44], [148, 103, 189], [140, 86, 75]], np.uint8
+)
+_SELF_HIT = (214, 39, 40)
+_PLANAR = (31, 119, 180)
+_CURVED = (214, 39, 40)
+_CHOSEN = (0, 200, 0)
+_TRUTH = (255, 215, 0)
+_HYPOTHESIS = (150, 150, 150)
+# Self-hit rays have no range (the device reports none): drawn this long from the mount.
+_SELF_HIT_RAY_M = 0.1
+_LEVELS = {"INFO": rr.TextLogLevel.INFO, "WARN": rr.TextLogLevel.WARN,
+           "ERROR": rr.TextLogLevel.ERROR}  # fmt: skip
+
+
+class RerunRecorder:
+    """A :class:`~mks_sim.viz.recorder.Recorder` writing to Rerun.
+
+    Args:
+        spec: where the recording goes (save / spawn / connect).
+        application_id: the Rerun application id (the command's name).
+    """
+
+    enabled = True
+
+    def __init__(self, spec: RerunSpec, application_id: str = "mks_sim") -> None:
+        self.spec = spec
+        self.rec = rr.RecordingStream(application_id)
+        try:
+            if spec.mode == "save":
+                self.rec.save(str(spec.target))
+            elif spec.mode == "spawn":
+                self.rec.spawn()
+            else:
+                self.rec.connect_grpc(str(spec.target))
+        except Exception as exc:  # rerun raises its own (RuntimeError, OSError, ...) types
+            raise MksError(f"--rerun {spec.mode}: cannot open the recording: {exc}") from exc
+        self._snapshots: list[Any] = []
+        self._robot: list[Any] = []
+        self._robot_joints: list[str] = []
+        self._time = 0.0
+        self._world: Any = None
+        self._devices: dict[str, DeviceTap] = {}
+        self._read: set[str] = set()
+        self._stereo: dict[str, Any] = {}
+        self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+
+    # ------------------------------------------------------------------ timelines
+
+    def set_time(self, sim_time_s: float) -> None:
+        self._time = float(sim_time_s)
+        self.rec.set_time("sim_time", duration=self._time)
+
+    def set_episode(self, episode: int | None, attempt: int | None = None) -> None:
+        if episode is not None:
+            self.rec.set_time("episode", sequence=int(episode))
+        if attempt is not None:
+            self.rec.set_time("attempt", sequence=int(attempt))
+
+    def _sync_time(self, world: Any) -> None:
+        data = getattr(world, "data", None)
+        if data is not None:
+            self.set_time(float(data.time))
+
+    # ------------------------------------------------------------------ taps
+
+    def tap_devices(self, devices: Mapping[str, Any]) -> Mapping[str, Any]:
+        self._devices = {name: DeviceTap(dev, name, self.log_reading) for name, dev in devices.items()}
+        return self._devices
+
+    def log_camera_views(self) -> None:
+        """Read and log every tapped camera not read yet (context views after a
+        localization; cameras only, so no later reading of another device changes)."""
+        for name, dev in self._devices.items():
+            if name not in self._read and isinstance(dev.device, Camera):
+                try:
+                    dev.read()
+                except MksError as exc:
+                    self.log_text(f"{name}: {exc}", "WARN")
+
+    def tap_graph(self, graph: Any) -> Any:
+        if graph is None:
+            graph = SensorGraph.from_dir()
+        return GraphTap(graph, self._snapshots)
+
+    # ------------------------------------------------------------------ devices
+
+    def log_reading(self, device: str, reading: Any) -> None:
+        """One device reading: camera frame, range scans or a touch pad."""
+        self._read.add(device)
+        if self._world is not None:
+            self._sync_time(self._world)
+        if hasattr(reading, "rgb"):
+            self._log_camera(device, reading)
+        elif hasattr(reading, "pressure"):
+            self._log_touch(device, reading)
+        elif isinstance(reading, (list, tuple)) and reading and hasattr(reading[0], "self_hit"):
+            self._log_scans(device, reading)
+
+    def _log_camera(self, device: str, frame: Any) -> None:
+        base = f"world/cameras/{device}"
+        T = np.asarray(frame.camera_to_world, dtype=float)
+        h, w = frame.shape
+        self.rec.log(base, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+        self.rec.log(
+            base,
+            rr.Pinhole(image_from_camera=np.asarray(frame.K), resolution=[w, h],
+                       camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.1),
+        )  # fmt: skip
+        self.rec.log(f"{base}/rgb", rr.Image(np.ascontiguousarray(frame.rgb)))
+        if frame.depth is not None:
+            depth = np.nan_to_num(np.asarray(frame.depth, dtype=np.float32), nan=0.0)
+            self.rec.log(f"{base}/depth", rr.DepthImage(depth, meter=1.0))
+        if device in (names.STEREO_LEFT, names.STEREO_RIGHT):
+            self._stereo[device] = frame
+            if len(self._stereo) == 2:
+                pair, self._stereo = self._stereo, {}
+                try:
+                    d = disparity(pair[names.STEREO_LEFT], pair[names.STEREO_RIGHT])
+                except (MksError, ValueError, cv2.error) as exc:
+                    log.debug("disparity: %s", exc)
+                    return
+                self.rec.log("stereo/disparity", rr.DepthImage(np.nan_to_num(d, nan=0.0),
+                                                               meter=1.0))  # fmt: skip
+
+    def _log_scans(self, device: str, scans: Sequence[Any]) -> None:
+        for scan in scans:
+            base = f"world/{device}/view_{int(scan.view)}"
+            color = _PALETTE[int(scan.view) % len(_PALETTE)]
+            self.rec.log(f"{base}/points", rr.Points3D(scan.hit_points, colors=color, radii=0.001))
+            T = np.asarray(scan.sensor_to_world, dtype=float)
+            dirs = np.asarray(scan.directions_sensor)[np.asarray(scan.self_hit)] @ T[:3, :3].T
+            self.rec.log(
+                f"{base}/self_hit",
+                rr.Arrows3D(origins=np.repeat(T[None, :3, 3], len(dirs), axis=0),
+                            vectors=_SELF_HIT_RAY_M * dirs, colors=_SELF_HIT),
+            )  # fmt: skip
+
+    def _log_touch(self, device: str, reading: Any) -> None:
+        pressure = np.asarray(reading.pressure, dtype=float)
+        pos = np.asarray(reading.positions_world, dtype=float)
+        scale = max(float(pressure.max(initial=0.0)), 1.0)
+        colors = np.c_[255 * np.clip(pressure / scale, 0, 1), np.zeros((len(pressure), 2))]
+        self.rec.log(
+            f"world/touch/{device}",
+            rr.Points3D(pos, colors=colors.astype(np.uint8), radii=0.002,
+                        labels=[f"{p:.0f} Pa" for p in pressure]),
+        )  # fmt: skip
+        self.rec.log(f"touch/{device}/pressure_pa", rr.BarChart(pressure))
+        self.rec.log(f"touch/{device}/force_n", rr.Scalars(float(np.sum(reading.force))))
+
+    # ------------------------------------------------------------------ robot
+
+    def log_world(self, world: Any) -> None:
+        self._world = world
+        self._sync_time(world)
+        self._robot = geom_meshes(world.model, names.ROBOT_PREFIX)
+        for g in self._robot:
+            color = (255 * g.rgba[:3]).astype(np.uint8)
+            self.rec.log(
+                f"world/robot/{g.name}",
+                rr.Mesh3D(vertex_positions=g.vertices, triangle_indices=g.faces,
+                          albedo_factor=color),
+                static=True,
+            )  # fmt: skip
+        m = world.model
+        self._robot_joints = [
+            m.joint(j).name for j in range(m.njnt)
+            if m.joint(j).name.startswith(names.ROBOT_PREFIX)
+        ]  # fmt: skip
+        self.log_robot(world)
+
+    def log_robot(self, world: Any) -> None:
+        self._sync_time(world)
+        for g in self._robot:
+            T = geom_to_world(world.data, g.geom_id)
+            self.rec.log(f"world/robot/{g.name}", rr.Transform3D(translation=T[:3, 3],
+                                                                mat3x3=T[:3, :3]))  # fmt: skip
+        for j in self._robot_joints:
+            q = float(world.data.joint(j).qpos[0])
+            self.rec.log(f"robot/joints/{j.removeprefix(names.ROBOT_PREFIX)}", rr.Scalars(q))
+
+    # ------------------------------------------------------------------ sensing
+
+    def _log_snapshot(self, snap: Any) -> None:
+        """The logical sensor streams a snapshot has evaluated, its fallbacks, the disparity,
+        and the SPG / segmentation of its points."""
+        for sensor, attempts in snap.attempts.items():
+            for a in attempts:
+                if not a.ok:
+                    served = snap.provenance.get(sensor, "nothing")
+                    self.log_text(
+                        f"{sensor}: {a.way} failed ({a.reason}); served by {served}", "WARN"
+                    )
+        for sensor, served in sorted(snap.provenance.items()):
+            try:
+                stream = snap.get(sensor)
+            except MksError:
+                continue
+            self._log_stream(sensor, stream, served)
+        if "Range_Points" in snap.provenance:
+            pts = np.asarray(snap.get("Range_Points").data, dtype=float)[:, :3]
+            self._log_grouping(pts[np.all(np.isfinite(pts), axis=1)])
+
+    def _log_stream(self, sensor: str, stream: Any, served: str) -> None:
+        names_ = list(stream.vector.names)
+        data = np.asarray(stream.data, dtype=float)
+        if not {"x", "y"} <= set(names_) or len(data) == 0:
+            return
+        xyz = np.c_[data[:, names_.index("x")], data[:, names_.index("y")],
+                    data[:, names_.index("z")] if "z" in names_
+                    else np.full(len(data), names.TABLE_TOP_Z)]  # fmt: skip
+        path = f"world/sensors/{sensor}"
+        if "radius" in names_:
+            r = data[:, names_.index("radius")]
+            self.rec.log(
+                path,
+                rr.Ellipsoids3D(centers=xyz, half_sizes=np.repeat(r[:, None], 3, axis=1),
+                                labels=[f"r={1000 * v:.1f} mm ({served})" for v in r]),
+            )  # fmt: skip
+            return
+        if "curvature" in names_:
+            code = data[:, names_.index("curvature")]
+            colors = np.where((code < 0)[:, None], _PLANAR, _CURVED).astype(np.uint8)
+            self.rec.log(path, rr.Points3D(xyz, colors=colors, radii=0.001))
+            return
+        big = len(data) > 200
+        self.rec.log(
+            path,
+            rr.Points3D(xyz, radii=0.001 if big else 0.003,
+                        labels=None if big else [f"{sensor} ({served})"] * len(xyz)),
+        )  # fmt: skip
+
+    def _log_grouping(self, points: np.ndarray) -> None:
+        """SPG edges and the segmentation (planar/curved, per region) of each object cloud."""
+        segs: list[np.ndarray] = []
+        region_pts: list[np.ndarray] = []
+        region_ids: list[np.ndarray] = []
+        kind_colors: list[np.ndarray] = []
+        normals: list[np.ndarray] = []
+        next_id = 1
+        for idx in object_clouds(points, names.TABLE_TOP_Z):
+            cloud = points[idx]
+            spg = SpatialProximityGraph(cloud, m=8)
+            A = spg.adjacency.tocoo()
+            segs.append(np.stack([cloud[A.row], cloud[A.col]], axis=1))
+            try:
+                seg = segment_surfaces(cloud, spg)
+            except MksError as exc:
+                log.debug("segmentation: %s", exc)
+                continue
+            ids = np.zeros(len(cloud), dtype=np.int64)
+            for region_idx in [r.indices for r in seg.planes] + [r.indices for r in seg.curved]:
+                ids[region_idx] = next_id
+                next_id += 1
+            region_pts.append(cloud)
+            region_ids.append(ids)
+            kind_colors.append(np.where((seg.codes < 0)[:, None], _PLANAR, _CURVED))
+            if self.spec.normals:
+                normals.append(np.c_[cloud, 0.01 * np.asarray(seg.normals)])
+        if segs:
+            lines = np.concatenate(segs)
+            self.rec.log("world/spg/edges", rr.LineStrips3D(lines, radii=0.0002, colors=(128,) * 3))
+        if region_pts:
+            pts = np.concatenate(region_pts)
+            self.rec.log(
+                "world/segmentation/regions",
+                rr.Points3D(pts, class_ids=np.concatenate(region_ids), radii=0.0012),
+            )
+            self.rec.log(
+                "world/segmentation/curvature",
+                rr.Points3D(pts, colors=np.concatenate(kind_colors).astype(np.uint8),
+                            radii=0.0012),
+            )  # fmt: skip
+        if normals:
+            n = np.concatenate(normals)
+            self.rec.log("world/segmentation/normals", rr.Arrows3D(origins=n[:, :3],
+                                                                   vectors=n[:, 3:]))  # fmt: skip
+
+    # ------------------------------------------------------------------ localization
+
+    def log_localization(self, result: Any, *, world: Any = None) -> None:
+        if world is not None:
+            self._sync_time(world)
+        kept, self._snapshots[:] = list(self._snapshots), []
+        for snap in kept:
+            self._log_snapshot(snap)
+        obj = str(getattr(result, "object", "object"))
+        base = f"world/localization/{obj}"
+        mesh = object_mesh(obj, world)
+        frame = wireframe(*mesh) if mesh is not None else None
+        hyps = tuple(getattr(result, "hypotheses", ()))
+        maxima = []
+        for k, h in enumerate(hyps):
+            T = as_matrix(h.matrix)
+            if T is None:
+                continue
+            score = float(getattr(h, "score", float("nan")))
+            votes = int(getattr(h, "votes", 0))
+            maxima.append((T[:3, 3], votes, score))
+            if frame is not None:
+                self.rec.log(
+                    f"{base}/hypotheses/{k}",
+                    rr.LineStrips3D(list(transform_segments(frame, T)), colors=_HYPOTHESIS,
+                                    radii=0.0003, labels=f"#{k} score {score:.3f} votes {votes}"),
+                )  # fmt: skip
+        if maxima:
+            self.rec.log(
+                f"{base}/hough_maxima",
+                rr.Points3D([m[0] for m in maxima], radii=[0.002 + 0.0002 * min(m[1], 40)
+                            for m in maxima],
+                            labels=[f"votes {m[1]} score {m[2]:.3f}" for m in maxima]),
+            )  # fmt: skip
+        T = as_matrix(getattr(result, "object_to_world", None))
+        if T is not None:
+            self._log_pose(f"{base}/chosen", T)
+            if frame is not None:
+                self.rec.log(
+                    f"{base}/chosen/wireframe",
+                    rr.LineStrips3D(list(frame), colors=_CHOSEN, radii=0.0006),
+                )
+        diag = getattr(result, "diagnostics", None) or {}
+        found = bool(getattr(result, "found", T is not None))
+        timing = diag.get("timing", {}) if isinstance(diag, dict) else {}
+        self.log_text(
+            f"localize {obj}: {'found' if found else 'NOT FOUND'}, {len(hyps)} hypotheses; "
+            + ", ".join(f"{k} {v:.2f} s" for k, v in timing.items() if isinstance(v, float)),
+            "INFO" if found else "WARN",
+        )
+
+    def log_truth(self, object_name: str, object_to_world: Any, *, world: Any = None) -> None:
+        T = as_matrix(object_to_world)
+        if T is None:
+            return
+        path = f"eval/truth/{object_name}"
+        self._log_pose(path, T)
+        mesh = object_mesh(object_name, world)
+        if mesh is not None:
+            self.rec.log(f"{path}/wireframe",
+                         rr.LineStrips3D(list(wireframe(*mesh)), colors=_TRUTH, radii=0.0004,
+                                         labels="ground truth (evaluation only)"))  # fmt: skip
+
+    def _log_pose(self, path: str, T: np.ndarray) -> None:
+        self.rec.log(path, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))
+        self.rec.log(path, rr.TransformAxes3D(axis_length=0.05))
+
+    # ------------------------------------------------------------------ grasp
+
+    def log_grasps(self, candidates: Sequence[Any], chosen: Any = None) -> None:
+        pts, labels, quality = [], [], []
+        for k, c in enumerate(candidates):
+            p = _grasp_point(c)
+            if p is None:
+                continue
+            q = getattr(c, "quality", None)
+            q = float(q) if q is not None else 1.0 / (k + 1)  # rank when there is no quality
+            pts.append(p)
+            quality.append(q)
+            labels.append(f"#{k} quality {q:.3f}")
+        if pts:
+            qs = np.asarray(quality)
+            s = (qs - qs.min()) / max(float(np.ptp(qs)), 1e-12)
+            colors = np.c_[255 * (1 - s), 255 * s, np.zeros_like(s)].astype(np.uint8)
+            self.rec.log("world/grasp/candidates",
+                         rr.Points3D(pts, colors=colors, radii=0.003, labels=labels))  # fmt: skip
+            self.rec.log("grasp/best_quality", rr.Scalars(float(qs.max())))
+        p = _grasp_point(chosen) if chosen is not None else None
+        if p is not None:
+            self.rec.log("world/grasp/chosen", rr.Points3D([p], colors=_CHOSEN, radii=0.005,
+                                                           labels="chosen grasp"))  # fmt: skip
+
+    # ------------------------------------------------------------------ text, end
+
+    def log_text(self, text: str, level: str = "INFO") -> None:
+        self.rec.log("log", rr.TextLog(text, level=_LEVELS.get(level, rr.TextLogLevel.INFO)))
+
+    def close(self) -> None:
+        self.rec.flush()
+        if self.spec.mode == "save":
+            self.rec.disconnect()
+
+    def __enter__(self) -> RerunRecorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _grasp_point(c: Any) -> np.ndarray | None:
+    for attr in ("grasp_point_world", "position_world", "point_world"):
+        if hasattr(c, attr):
+            return np.asarray(getattr(c, attr), dtype=float)[:3]
+    T = as_matrix(getattr(c, "grasp_to_world", None))
+    return None if T is None else T[:3, 3]

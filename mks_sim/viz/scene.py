@@ -1,0 +1,186 @@
+"""Geometry for drawing: MuJoCo geoms as triangle meshes, wireframes, object clouds.
+
+No Rerun here (plain numpy), so the pieces are testable without the viewer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from mks_sim.geometry.meshes import box_mesh, uv_sphere
+from mks_sim.lowlevel.spg import SpatialProximityGraph
+
+__all__ = ["GeomMesh", "body_mesh", "feature_edges", "geom_meshes", "object_mesh", "wireframe"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class GeomMesh:
+    """One drawable geom.
+
+    Attributes:
+        name: the geom's name (``geom_<id>`` when unnamed).
+        geom_id: its id in the compiled model (to read ``data.geom_xpos/xmat``).
+        vertices: (V, 3) float vertices in the geom frame, metres.
+        faces: (F, 3) int triangles.
+        rgba: (4,) float colour.
+    """
+
+    name: str
+    geom_id: int
+    vertices: FloatArray
+    faces: NDArray[np.int64]
+    rgba: FloatArray
+
+
+def _geom_triangles(model: mujoco.MjModel, g: int) -> tuple[FloatArray, NDArray[np.int64]] | None:
+    t = int(model.geom_type[g])
+    size = np.asarray(model.geom_size[g], dtype=float)
+    if t == mujoco.mjtGeom.mjGEOM_MESH:
+        m = int(model.geom_dataid[g])
+        v0, nv = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
+        f0, nf = int(model.mesh_faceadr[m]), int(model.mesh_facenum[m])
+        verts = np.asarray(model.mesh_vert[v0 : v0 + nv], dtype=float)
+        return verts, np.asarray(model.mesh_face[f0 : f0 + nf], dtype=np.int64)
+    if t == mujoco.mjtGeom.mjGEOM_BOX:
+        mesh = box_mesh(2.0 * size)
+    elif t == mujoco.mjtGeom.mjGEOM_SPHERE:
+        mesh = uv_sphere(float(size[0]))
+    else:
+        return None  # planes, capsules, cylinders: nothing the recordings need yet
+    return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
+
+
+def geom_meshes(
+    model: mujoco.MjModel, body_prefix: str, groups: tuple[int, ...] = (0, 1)
+) -> list[GeomMesh]:
+    """Meshes of the geoms of every body whose name starts with ``body_prefix``.
+
+    Args:
+        model: the compiled model.
+        body_prefix: e.g. ``"jaco_arm/"`` (:data:`mks_sim.sim.names.ROBOT_PREFIX`).
+        groups: geom groups drawn (0 visual, 1 robot pads; never 3, collision stand-ins).
+    """
+    out: list[GeomMesh] = []
+    for g in range(model.ngeom):
+        body = model.body(int(model.geom_bodyid[g])).name
+        if not body.startswith(body_prefix) or int(model.geom_group[g]) not in groups:
+            continue
+        tri = _geom_triangles(model, g)
+        if tri is None:
+            continue
+        name = model.geom(g).name or f"geom_{g}"
+        out.append(GeomMesh(name, g, tri[0], tri[1], np.asarray(model.geom_rgba[g], dtype=float)))
+    return out
+
+
+def geom_to_world(data: mujoco.MjData, geom_id: int) -> FloatArray:
+    """(4, 4) pose of a geom in the world (after ``mj_kinematics``)."""
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(data.geom_xmat[geom_id], dtype=float).reshape(3, 3)
+    T[:3, 3] = data.geom_xpos[geom_id]
+    return T
+
+
+def body_mesh(model: mujoco.MjModel, body: str) -> tuple[FloatArray, NDArray[np.int64]] | None:
+    """The visual geoms of one body merged into one mesh in the BODY frame (or None)."""
+    bid = model.body(body).id
+    verts: list[FloatArray] = []
+    faces: list[NDArray[np.int64]] = []
+    n = 0
+    for g in range(model.ngeom):
+        if int(model.geom_bodyid[g]) != bid or int(model.geom_group[g]) != 0:
+            continue
+        tri = _geom_triangles(model, g)
+        if tri is None:
+            continue
+        R = np.zeros(9)
+        mujoco.mju_quat2Mat(R, np.asarray(model.geom_quat[g], dtype=float))
+        verts.append(tri[0] @ R.reshape(3, 3).T + model.geom_pos[g])
+        faces.append(tri[1] + n)
+        n += len(tri[0])
+    if not verts:
+        return None
+    return np.concatenate(verts), np.concatenate(faces)
+
+
+def object_mesh(name: str, world: Any = None) -> tuple[FloatArray, NDArray[np.int64]] | None:
+    """An object's mesh in its body frame: the model database's object when it has one
+    (``mks_sim.models.objects.load_object``), else the world's visual geoms of the body."""
+    try:
+        from mks_sim.models import objects  # type: ignore[attr-defined]
+
+        mesh = objects.load_object(name).mesh
+        return np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces, dtype=np.int64)
+    except Exception:  # noqa: BLE001 - the objects database is optional for drawing
+        pass
+    if world is None:
+        return None
+    try:
+        return body_mesh(world.model, name)
+    except KeyError:
+        return None
+
+
+def feature_edges(faces: NDArray[np.int64], vertices: FloatArray, angle_deg: float = 20.0):
+    """(E, 2) vertex pairs of the edges where the surface bends by more than ``angle_deg``
+    (and boundary edges): a box gives its 12 edges, not the triangulation's diagonals."""
+    f = np.asarray(faces, dtype=np.int64)
+    v = np.asarray(vertices, dtype=float)
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-15)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    face_of = np.tile(np.arange(len(f)), 3)
+    key = np.sort(e, axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    key, face_of = key[order], face_of[order]
+    same = np.all(key[1:] == key[:-1], axis=1)
+    keep: list[NDArray[np.int64]] = []
+    cos_max = np.cos(np.deg2rad(angle_deg))
+    pair = np.flatnonzero(same)
+    bent = np.einsum("ij,ij->i", n[face_of[pair]], n[face_of[pair + 1]]) < cos_max
+    keep.append(key[pair[bent]])
+    paired = np.zeros(len(key), dtype=bool)
+    paired[pair] = paired[pair + 1] = True
+    keep.append(key[~paired])
+    return np.unique(np.concatenate(keep), axis=0)
+
+
+def wireframe(
+    vertices: FloatArray, faces: NDArray[np.int64], max_edges: int = 600
+) -> FloatArray:
+    """(E, 2, 3) line segments drawing a mesh: its feature edges, or (for a smooth mesh such
+    as a sphere, which has none) at most ``max_edges`` of its triangle edges."""
+    edges = feature_edges(faces, vertices)
+    if len(edges) < 3:
+        f = np.asarray(faces, dtype=np.int64)
+        all_e = np.unique(
+            np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0
+        )
+        edges = all_e[:: max(1, len(all_e) // max_edges)]
+    v = np.asarray(vertices, dtype=float)
+    return np.stack([v[edges[:, 0]], v[edges[:, 1]]], axis=1)
+
+
+def transform_segments(segments: FloatArray, T: FloatArray) -> FloatArray:
+    """(E, 2, 3) segments mapped by the 4x4 ``T`` (column convention)."""
+    return segments @ T[:3, :3].T + T[:3, 3]
+
+
+def object_clouds(
+    points: FloatArray, table_z: float, margin: float = 0.004, gap: float = 0.012
+) -> list[NDArray[np.int64]]:
+    """Index sets of the points above the table split by SPG connectivity (largest first)."""
+    above = np.flatnonzero(points[:, 2] > table_z + margin)
+    if len(above) < 10:
+        return []
+    spg = SpatialProximityGraph(points[above], m=8, threshold=gap)
+    n, labels = spg.components()
+    groups = [above[labels == k] for k in range(n)]
+    return sorted((g for g in groups if len(g) >= 30), key=len, reverse=True)

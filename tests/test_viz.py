@@ -1,0 +1,169 @@
+"""Rerun recordings (`--rerun`): spec parsing, wireframes, recordings read back with Rerun's
+own reader, and no `rerun` import when the option is not given."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from mks_sim.cli import main
+from mks_sim.errors import SpecError
+from mks_sim.geometry.meshes import box_mesh
+from mks_sim.viz import NullRecorder, RerunSpec, open_recorder, parse_rerun_spec
+from mks_sim.viz.scene import feature_edges, wireframe
+
+# --------------------------------------------------------------------------- helpers
+
+
+def read_recording(path: Path) -> dict[str, dict[str, list[Any]]]:
+    """entity path -> component column -> the logged values (one entry per row), read with
+    Rerun's own reader (``rerun.chunk.RrdReader``; 0.41 has no ``rerun.dataframe``)."""
+    from rerun.chunk import RrdReader
+
+    out: dict[str, dict[str, list[Any]]] = {}
+    for chunk in RrdReader(path).stream():
+        batch = chunk.to_record_batch()
+        cols = out.setdefault(chunk.entity_path, {})
+        for name in batch.schema.names:
+            if ":" in name and not name.startswith("rerun."):
+                cols.setdefault(name, []).extend(batch.column(name).to_pylist())
+    return out
+
+
+def last(rec: dict[str, dict[str, list[Any]]], entity: str, column: str) -> Any:
+    values = [v for v in rec[entity][column] if v is not None]
+    return values[-1]
+
+
+# --------------------------------------------------------------------------- the spec
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("spawn", RerunSpec("spawn", None, False)),
+        ("spawn,normals", RerunSpec("spawn", None, True)),
+        ("connect:localhost:9876", RerunSpec("connect", "rerun+http://localhost:9876/proxy")),
+        ("connect:rerun+http://10.0.0.2:9876/proxy",
+         RerunSpec("connect", "rerun+http://10.0.0.2:9876/proxy")),
+    ],
+)  # fmt: skip
+def test_spec_forms(text: str, expected: RerunSpec) -> None:
+    assert parse_rerun_spec(text) == expected
+
+
+def test_save_spec_validates_the_path(tmp_path: Path) -> None:
+    spec = parse_rerun_spec(f"save:{tmp_path}/sub/run.rrd,normals")
+    assert spec == RerunSpec("save", f"{tmp_path}/sub/run.rrd", True)
+    with pytest.raises(SpecError, match=r"--rerun: save expected a path ending in \.rrd"):
+        parse_rerun_spec(f"save:{tmp_path}/run.txt")
+    (tmp_path / "folder.rrd").mkdir()
+    with pytest.raises(SpecError, match="expected a file path, got the folder"):
+        parse_rerun_spec(f"save:{tmp_path}/folder.rrd")
+    (tmp_path / "a_file").write_text("")
+    with pytest.raises(SpecError, match="not a writable folder"):
+        parse_rerun_spec(f"save:{tmp_path}/a_file/run.rrd")
+
+
+@pytest.mark.parametrize("text", ["", "save", "save:", "spawn:now", "record:x.rrd", "connect:"])
+def test_bad_spec_forms(text: str) -> None:
+    with pytest.raises(SpecError, match=r"^--rerun: .*expected"):
+        parse_rerun_spec(text)
+
+
+def test_cli_rejects_a_bad_spec_before_any_work(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["localize", "--object", "cube", "--rerun", "save:/tmp/run.png"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "argument --rerun" in err and "ending in .rrd" in err
+
+
+def test_null_recorder_passes_everything_through() -> None:
+    rec = open_recorder(None)
+    assert isinstance(rec, NullRecorder) and not rec.enabled
+    devices = {"a": object()}
+    assert rec.tap_devices(devices) is devices
+    assert rec.tap_graph(None) is None
+
+
+# --------------------------------------------------------------------------- wireframes
+
+
+def test_box_wireframe_is_its_twelve_edges() -> None:
+    mesh = box_mesh((0.02, 0.04, 0.06))
+    edges = feature_edges(mesh.faces, mesh.vertices)
+    assert len(edges) == 12  # not the 6 face diagonals of the triangulation
+    lengths = np.sort(np.linalg.norm(mesh.vertices[edges[:, 0]] - mesh.vertices[edges[:, 1]],
+                                     axis=1))  # fmt: skip
+    np.testing.assert_allclose(lengths, np.repeat([0.02, 0.04, 0.06], 4), atol=1e-12)
+    assert wireframe(mesh.vertices, mesh.faces).shape == (12, 2, 3)
+
+
+# --------------------------------------------------------------------------- recordings
+
+
+@pytest.mark.slow
+def test_localize_recording_reads_back(tmp_path: Path) -> None:
+    from mks_sim.cli.localize import run_trial
+
+    path = tmp_path / "loc.rrd"
+    with open_recorder(parse_rerun_spec(f"save:{path}"), "test") as recorder:
+        trial = run_trial("cube", 3, recorder=recorder)
+    rec = read_recording(path)
+    # every camera read for the context views: RGB images of the device's size
+    fmt = last(rec, "/world/cameras/overhead_camera/rgb", "Image:format")[0]
+    assert (fmt["width"], fmt["height"]) == (640, 480)
+    fmt = last(rec, "/world/cameras/depth_camera/depth", "DepthImage:format")[0]
+    assert (fmt["width"], fmt["height"]) == (320, 240)
+    assert "/stereo/disparity" in rec
+    # range finder: one point set per view (the default world has two mounts)
+    for view in (0, 1):
+        pts = np.asarray(last(rec, f"/world/range_finder/view_{view}/points",
+                              "Points3D:positions"))  # fmt: skip
+        assert pts.ndim == 2 and pts.shape[1] == 3 and len(pts) > 100
+    # the logical sensors the localization ran, and the grouping of their points
+    assert np.asarray(last(rec, "/world/sensors/Range_Points", "Points3D:positions")).shape[1] == 3
+    assert len(last(rec, "/world/sensors/Vertex_Detector", "Points3D:positions")) >= 3
+    assert len(last(rec, "/world/spg/edges", "LineStrips3D:strips")) > 100
+    assert "/world/segmentation/regions" in rec
+    # hypotheses: a 12-edge cube wireframe each; the chosen pose is the reported one
+    hyps = [e for e in rec if e.startswith("/world/localization/cube/hypotheses/")]
+    assert len(hyps) >= 1
+    strips = np.asarray(last(rec, hyps[0], "LineStrips3D:strips"))
+    assert strips.shape == (12, 2, 3)
+    M = np.asarray(trial["matrix"])
+    t = last(rec, "/world/localization/cube/chosen", "Transform3D:translation")[0]
+    np.testing.assert_allclose(t, M[:3, 3], atol=1e-5)
+    # the truth on its own path equals the simulator's pose the CLI evaluated against
+    T = np.asarray(trial["truth"])
+    t = last(rec, "/eval/truth/cube", "Transform3D:translation")[0]
+    np.testing.assert_allclose(t, T[:3, 3], atol=1e-5)
+    R = np.asarray(last(rec, "/eval/truth/cube", "Transform3D:mat3x3")[0]).reshape(3, 3).T
+    np.testing.assert_allclose(R, T[:3, :3], atol=1e-5)  # Rerun stores 3x3 column-major
+    # the robot: its meshes and joint state
+    assert any(e.startswith("/world/robot/") and "Mesh3D:triangle_indices" in c
+               for e, c in rec.items())  # fmt: skip
+    assert len([e for e in rec if e.startswith("/robot/joints/")]) == 9
+    texts = [t for v in rec["/log"]["TextLog:text"] for t in v]
+    assert any(t.startswith("localize cube: found") for t in texts)
+
+
+@pytest.mark.slow
+def test_logging_off_imports_no_rerun() -> None:
+    code = (
+        "import json, sys\n"
+        "from mks_sim.cli import main\n"
+        "rc = main(['localize', '--object', 'sphere', '--seed', '1', '--json'])\n"
+        "print(json.dumps({'rc': rc, 'rerun': 'rerun' in sys.modules}))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=300)  # fmt: skip
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    assert result == {"rc": 0, "rerun": False}
