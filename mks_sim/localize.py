@@ -1076,14 +1076,13 @@ def _load_model_file(path: Path, name: str) -> LocalizableModel:
     if not path.is_file():
         raise NotFound(f"model file not found: {path}")
     ext = path.suffix.lower()
-    if ext in _MESH_EXT or ext == ".ply":
+    from mks_sim.io import _ply
+
+    # A PLY with faces is a mesh (its errors are shown as they are); without, a point cloud.
+    if ext in _MESH_EXT or (ext == ".ply" and _ply.has_element(path, "face")):
         from mks_sim.io.mesh import read_mesh
 
-        try:
-            return PolyhedralModel.from_mesh(read_mesh(path), name)
-        except DataError:
-            if ext != ".ply":
-                raise
+        return PolyhedralModel.from_mesh(read_mesh(path), name)
     from mks_sim.io.pointcloud import read_point_cloud
 
     cloud = read_point_cloud(path)

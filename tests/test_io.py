@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -253,3 +254,111 @@ def test_check_scale_flags_unit_mixups(caplog) -> None:
     assert check_scale(model * 1000.0, scene, scale=0.001) is None
     msg = check_scale(model, scene * 1000.0)  # scene in mm
     assert msg is not None and "--scale 1000" in msg
+
+
+# --------------------------------------------------------------------------- issue 12
+
+
+def _ascii_ply(path: Path, header_count: str, rows: int) -> Path:
+    body = "".join(f"{i} {i * 2} {i * 3}\n" for i in range(rows))
+    path.write_text(
+        "ply\nformat ascii 1.0\n"
+        f"element vertex {header_count}\nproperty float x\nproperty float y\nproperty float z\n"
+        "end_header\n" + body
+    )
+    return path
+
+
+@pytest.mark.parametrize(
+    ("count", "rows", "message"),
+    [
+        ("3", 5, r"2 more row\(s\) than the header declares"),
+        ("-5", 3, r"expected a row count >= 0, got -5"),
+        ("5", 3, r"header says element vertex has 5 rows but the data holds 3"),
+    ],
+)
+def test_ply_header_counts_must_match_the_data(tmp_path: Path, count, rows, message) -> None:
+    with pytest.raises(DataError, match=message):
+        read_point_cloud(_ascii_ply(tmp_path / "c.ply", count, rows))
+    assert len(read_point_cloud(_ascii_ply(tmp_path / "ok.ply", "4", 4)).points) == 4
+
+
+def test_binary_ply_with_more_data_than_declared(tmp_path: Path) -> None:
+    pts = np.random.default_rng(0).random((10, 3))
+    write_ply(tmp_path / "b.ply", pts, binary=True)
+    raw = (tmp_path / "b.ply").read_bytes()
+    (tmp_path / "short.ply").write_bytes(raw.replace(b"element vertex 10", b"element vertex 7"))
+    with pytest.raises(DataError, match=r"more byte\(s\) than the header declares"):
+        read_point_cloud(tmp_path / "short.ply")
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        ({"POINTS 6": "POINTS 4", "WIDTH 6": "WIDTH 4"}, r"POINTS 4 but the data holds 6"),
+        ({"WIDTH 6": "WIDTH -3", "HEIGHT 1": "HEIGHT -2"}, r"expected WIDTH >= 0, got -3"),
+        ({"POINTS 6": "POINTS -6", "WIDTH 6": "WIDTH -6"}, r"expected WIDTH >= 0, got -6"),
+    ],
+)
+@pytest.mark.parametrize("data", ["ascii", "binary"])
+def test_pcd_header_counts_must_match_the_data(tmp_path: Path, data, edit, message) -> None:
+    path = tmp_path / "c.pcd"
+    write_pcd(path, np.random.default_rng(1).random((6, 3)), data=data)
+    raw = path.read_bytes()
+    head, sep, body = raw.partition(b"DATA")
+    text = head.decode()
+    for a, b in edit.items():
+        assert a in text
+        text = text.replace(a, b)
+    path.write_bytes(text.encode() + sep + body)
+    with pytest.raises(DataError, match=message):
+        read_point_cloud(path)
+
+
+def test_folder_and_device_are_not_clouds(tmp_path: Path) -> None:
+    (tmp_path / "d.ply").mkdir()
+    with pytest.raises(DataError, match="expected a point cloud file, got a folder"):
+        read_point_cloud(tmp_path / "d.ply")
+    with pytest.raises(DataError, match="got a special file"):
+        read_point_cloud("/dev/null")
+    with pytest.raises(NotFound, match="not found"):
+        read_point_cloud(tmp_path / "nothing.ply")
+
+
+def test_complex_npy_is_an_error_without_warnings(tmp_path: Path) -> None:
+    np.save(tmp_path / "c.npy", np.ones((5, 3), dtype=complex))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(DataError, match=r"expected a real .* got dtype complex128"):
+            read_point_cloud(tmp_path / "c.npy")
+
+
+def test_require_spread_rejects_degenerate_clouds_fast() -> None:
+    import time
+
+    from mks_sim.io.units import require_spread
+
+    same = np.tile([0.1, 0.2, 0.3], (200_000, 1))
+    t0 = time.perf_counter()
+    with pytest.raises(DataError, match=r"all 200000 points at \(0.1, 0.2, 0.3\)"):
+        require_spread(same, "s.npy")
+    line = np.c_[np.linspace(0, 1, 500), np.zeros(500), np.zeros(500)]
+    with pytest.raises(DataError, match="on one line"):
+        require_spread(line, "s.npy")
+    with pytest.raises(DataError, match="at least 3 finite points, got 2"):
+        require_spread(np.array([[0, 0, 0], [1, 1, 1], [np.nan, 0, 0]]), "s.npy")
+    require_spread(np.random.default_rng(0).random((100, 3)), "s.npy")  # fine
+    assert time.perf_counter() - t0 < 2.0
+
+
+def test_ply_mesh_with_a_bad_face_index_shows_the_real_error(tmp_path: Path) -> None:
+    from mks_sim.localize import load_model
+
+    path = tmp_path / "mesh_badidx.ply"
+    path.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+        "0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n3 0 1 9\n"
+    )
+    with pytest.raises(DataError, match=r"face index out of range \[0, 3\]"):
+        load_model(str(path))

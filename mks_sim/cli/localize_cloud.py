@@ -126,8 +126,11 @@ def run(args: argparse.Namespace) -> int:
         raise DataError(f"--scale: expected a positive number, got {args.scale}")
     if args.max_hypotheses < 1:
         raise DataError(f"--max-hypotheses: expected >= 1, got {args.max_hypotheses}")
+    from mks_sim.io.units import require_spread
+
     model = load_model(args.model)
     cloud = read_point_cloud(args.scene)
+    require_spread(cloud.points, str(args.scene))  # a degenerate scene: a clear message, fast
     try:
         loc = localize_cloud(
             model,

@@ -21,13 +21,31 @@ HELP = "recompute the paper's case-study tables and print them beside the paper'
 SECTIONS: tuple[str, ...] = ("mks_sim.paper.tables", "mks_sim.paper.hough_cases")
 
 
+def section_names() -> dict[str, str]:
+    """The fixed ``--section`` choices: short name (``tables``) -> module (the full module
+    name of :data:`SECTIONS` is accepted too); nothing else is ever imported."""
+    names = {module.rsplit(".", 1)[-1]: module for module in SECTIONS}
+    names.update({module: module for module in SECTIONS})
+    return names
+
+
+def _section(text: str) -> str:
+    names = section_names()
+    if text not in names:
+        short = [n for n in names if "." not in n]
+        raise argparse.ArgumentTypeError(f"expected one of {short}, got {text!r}")
+    return names[text]
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    short = [n for n in section_names() if "." not in n]
     parser.add_argument(
         "--section",
         action="append",
-        metavar="MODULE",
-        help=f"only these section modules (repeatable; default: all of {', '.join(SECTIONS)})",
+        type=_section,
+        metavar="NAME",
+        help=f"only these sections (repeatable; one of {', '.join(short)}; default: all)",
     )
 
 

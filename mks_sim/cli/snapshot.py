@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from mks_sim.cli import output_dir
 from mks_sim.errors import MksError, SpecError
 
 HELP = "write camera images, disparity, range scan (PLY) and SPG/region/vertex pictures"
@@ -39,7 +40,9 @@ SCENES = ("scene1", "scene2", "part")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene", required=True, choices=SCENES, help="scene to build")
-    parser.add_argument("--out", required=True, type=Path, help="output folder (created)")
+    parser.add_argument(
+        "--out", required=True, type=Path, help="output folder (created; its parent must exist)"
+    )
     parser.add_argument(
         "--seed", type=int, default=None, help="randomise the layout (default: none)"
     )
@@ -256,8 +259,7 @@ def run(args: argparse.Namespace) -> int:
         raise SpecError(
             f"--fail: unknown device(s) {unknown}; valid device names: {list(DEVICE_NAMES)}"
         )
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    out: Path = output_dir(args.out, "--out")  # checked (and created) before any work
     world = build_world(args.scene, seed=args.seed)
     faults = {d: DeviceFaults(failed=True) for d in args.fail}
     seed = 0 if args.seed is None else int(args.seed)

@@ -28,6 +28,26 @@ def _err(path: Path, msg: str) -> DataError:
     return DataError(f"{path.name}: {msg}")
 
 
+def has_element(path: Path, name: str) -> bool:
+    """Whether the PLY header of ``path`` declares ``element name`` (only the header is read).
+
+    Raises:
+        DataError: not a PLY file or no ``end_header`` within the first 64 KiB.
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(65536)
+    if not head.startswith(b"ply"):
+        raise _err(path, "not a PLY file (expected the magic line 'ply')")
+    end = head.find(b"end_header")
+    if end < 0:
+        raise _err(path, "PLY header has no 'end_header' line")
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        tok = line.split()
+        if len(tok) >= 2 and tok[0] == "element" and tok[1] == name:
+            return True
+    return False
+
+
 def read_ply(path: Path) -> dict[str, dict[str, np.ndarray] | list[np.ndarray]]:
     """Parse a PLY file into {element: {scalar property: (count,) array}} (lists as lists).
 
@@ -52,7 +72,10 @@ def read_ply(path: Path) -> dict[str, dict[str, np.ndarray] | list[np.ndarray]]:
             if tok[0] == "format":
                 fmt = tok[1]
             elif tok[0] == "element":
-                elements.append(_Element(tok[1], int(tok[2])))
+                count = int(tok[2])
+                if count < 0:
+                    raise ValueError(f"expected a row count >= 0, got {count}")
+                elements.append(_Element(tok[1], count))
             elif tok[0] == "property":
                 if not elements:
                     raise ValueError("property before any element")
@@ -120,6 +143,13 @@ def _read_ascii(path: Path, body: bytes, elements: list[_Element]) -> dict:
             for name, typ, cnt in el.props:
                 data[name] = np.array(cols[name], dtype=typ) if cnt is None else _lists(cols[name])
         out[el.name] = data
+    if pos < len(lines):
+        last = elements[-1] if elements else None
+        raise _err(
+            path,
+            f"the data holds {len(lines) - pos} more row(s) than the header declares"
+            + (f" (element {last.name} {last.count})" if last else " (no elements)"),
+        )
     return out
 
 
@@ -152,6 +182,13 @@ def _read_binary(path: Path, body: bytes, elements: list[_Element], endian: str)
         else:
             data, pos = _read_binary_lists(path, body, pos, el, endian)
         out[el.name] = data
+    if body[pos:].strip(b" \t\r\n\x00"):
+        last = elements[-1] if elements else None
+        raise _err(
+            path,
+            f"the data holds {len(body) - pos} more byte(s) than the header declares"
+            + (f" (element {last.name} {last.count})" if last else " (no elements)"),
+        )
     return out
 
 

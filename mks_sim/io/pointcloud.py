@@ -25,6 +25,7 @@ from mks_sim.io.lzf import LZFError, lzf_compress, lzf_decompress
 
 __all__ = [
     "PointCloud",
+    "check_input_file",
     "read_point_cloud",
     "write_npy",
     "write_npz",
@@ -97,6 +98,21 @@ def _finish(
     return PointCloud(pts, nrm, shape, dropped, idx)
 
 
+def check_input_file(path: Path, what: str) -> None:
+    """``path`` is an existing regular file (not a folder, a device or a pipe).
+
+    Raises:
+        NotFound: nothing at ``path``.
+        DataError: ``path`` exists but is not a regular file.
+    """
+    if not path.exists():
+        raise NotFound(f"{what} file not found: {path}")
+    if path.is_dir():
+        raise DataError(f"{path}: expected a {what} file, got a folder")
+    if not path.is_file():
+        raise DataError(f"{path}: expected a {what} file, got a special file (device or pipe)")
+
+
 def read_point_cloud(path: str | Path) -> PointCloud:
     """Read a point cloud by extension: .ply, .pcd, .npy, .npz.
 
@@ -109,8 +125,7 @@ def read_point_cloud(path: str | Path) -> PointCloud:
         DataError: the file is malformed, truncated or of an unknown type.
     """
     path = Path(path)
-    if not path.is_file():
-        raise NotFound(f"point cloud file not found: {path}")
+    check_input_file(path, "point cloud")
     ext = path.suffix.lower()
     if ext == ".ply":
         return _read_ply_cloud(path)
@@ -149,8 +164,8 @@ def _read_numpy(path: Path) -> PointCloud:
                     raise _err(path, f"NPZ needs a 'points' array, has {sorted(z.files)}")
     except (ValueError, OSError, EOFError) as exc:
         raise _err(path, f"not a readable NumPy file ({exc})") from exc
-    if not np.issubdtype(arr.dtype, np.number):
-        raise _err(path, f"expected a numeric array, got dtype {arr.dtype}")
+    if not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+        raise _err(path, f"expected a real (integer or float) array, got dtype {arr.dtype}")
     shape = None
     if arr.ndim == 3 and arr.shape[2] == 3:
         shape = (arr.shape[0], arr.shape[1])
@@ -202,6 +217,9 @@ def _read_pcd(path: Path) -> PointCloud:
         raise _err(path, f"bad PCD header ({type(exc).__name__}: {exc})") from exc
     if not (len(sizes) == len(types) == len(counts) == n_f):
         raise _err(path, f"PCD header: FIELDS has {n_f} entries but SIZE/TYPE/COUNT differ")
+    for key, value in (("WIDTH", width), ("HEIGHT", height), ("POINTS", n_points)):
+        if value < 0:
+            raise _err(path, f"PCD header: expected {key} >= 0, got {value}")
     if width * height != n_points:
         raise _err(path, f"PCD header: WIDTH {width} x HEIGHT {height} != POINTS {n_points}")
     if not all(f in fields for f in "xyz"):
@@ -230,8 +248,8 @@ def _read_pcd(path: Path) -> PointCloud:
         dt = np.dtype(
             [(f"f{i}", "<" + d.str[1:], (k,)) for i, (d, k) in enumerate(zip(dts, counts))]
         )
-        have = len(body) // dt.itemsize
-        if have < n_points:
+        have = len(body) // dt.itemsize if dt.itemsize else 0
+        if have != n_points:
             raise _err(path, f"header says POINTS {n_points} but the data holds {have}")
         rec = np.frombuffer(body, dtype=dt, count=n_points)
         for i, f in enumerate(fields):
@@ -240,6 +258,12 @@ def _read_pcd(path: Path) -> PointCloud:
         if len(body) < 8:
             raise _err(path, "binary_compressed PCD: missing the compressed/uncompressed sizes")
         csize, usize = struct.unpack("<II", body[:8])
+        if body[8 + csize :].strip(b" \t\r\n\x00"):
+            raise _err(
+                path,
+                f"binary_compressed PCD: {len(body) - 8 - csize} bytes after the "
+                f"{csize} compressed bytes the header declares",
+            )
         if 8 + csize > len(body):
             raise _err(
                 path,

@@ -11,7 +11,9 @@ import logging
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["check_scale", "extent"]
+from mks_sim.errors import DataError
+
+__all__ = ["check_scale", "extent", "require_spread"]
 
 log = logging.getLogger(__name__)
 
@@ -26,6 +28,35 @@ def extent(points: ArrayLike) -> float:
         return 0.0
     lo, hi = np.percentile(p, [2, 98], axis=0)
     return float(np.linalg.norm(hi - lo))
+
+
+def require_spread(points: ArrayLike, where: str, *, min_points: int = 3) -> None:
+    """Reject a cloud that cannot hold a surface: too few finite points, all points at one
+    location, or all on one line. Fast (one SVD of a centred sample), so a degenerate scene is
+    refused before any grouping work.
+
+    Raises:
+        DataError: ``scan.ply: expected points spread over a surface, got all 500 points at
+            (0.1, 0.2, 0.3)``.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    p = p[np.all(np.isfinite(p), axis=1)]
+    if len(p) < min_points:
+        raise DataError(f"{where}: expected at least {min_points} finite points, got {len(p)}")
+    span = float(np.max(np.ptp(p, axis=0)))
+    if span == 0.0:
+        x, y, z = (float(v) for v in p[0])
+        raise DataError(
+            f"{where}: expected points spread over a surface, got all {len(p)} points at "
+            f"({x:.6g}, {y:.6g}, {z:.6g})"
+        )
+    sample = p[:: max(1, len(p) // 20000)]
+    sv = np.linalg.svd(sample - sample.mean(axis=0), compute_uv=False)
+    if sv[1] <= 1e-9 * sv[0]:
+        raise DataError(
+            f"{where}: expected points spread over a surface, got all {len(p)} points on "
+            f"one line (length {span:.4g})"
+        )
 
 
 def check_scale(

@@ -1,0 +1,150 @@
+"""Issue 12: every bad input gets a one-line error and exit 2, checked per command before any
+work starts; the exit-code contract (0 found, 1 not found, 2 bad input)."""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mks_sim.cli import main, output_dir, output_file
+from mks_sim.errors import SpecError
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    try:
+        rc = main(argv)
+    except SystemExit as exc:  # argparse usage errors
+        rc = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def _one_line_error(err: str) -> None:
+    assert "Traceback" not in err
+    assert len(err.strip().splitlines()) <= 2, err  # argparse: usage line + error line
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["localize", "--object", "cube", "--seed", "-1"],
+        ["snapshot", "--scene", "scene2", "--out", "x", "--seed", "-1"],
+        ["grasp", "--object", "cube", "--episodes", "1", "--seed", "-1"],
+    ],
+)
+def test_negative_seed_is_bad_input(argv, capsys, tmp_path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = _run(argv, capsys)
+    assert rc == 2 and out == ""
+    _one_line_error(err)
+    assert "--seed" in err and "non-negative integer" in err and "-1" in err
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (["localize-cloud", "--model", "cube_5cm", "--scene", "s.npy", "--min-score", "nan"],
+         "--min-score"),
+        (["localize-cloud", "--model", "cube_5cm", "--scene", "s.npy", "--viewpoint", "nan", "0",
+          "0"], "--viewpoint"),
+        (["localize-cloud", "--model", "cube_5cm", "--scene", "s.npy", "--scale", "inf"],
+         "--scale"),
+    ],
+)  # fmt: skip
+def test_non_finite_option_values_are_bad_input(argv, option, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    np.save(tmp_path / "s.npy", np.random.default_rng(0).random((50, 3)))
+    rc, out, err = _run(argv, capsys)
+    assert rc == 2 and out == ""
+    _one_line_error(err)
+    assert option in err and "finite" in err
+
+
+def test_paper_section_is_a_fixed_list(capsys) -> None:
+    rc, _, err = _run(["paper", "--section", "os"], capsys)
+    assert rc == 2 and "expected one of ['tables', 'hough_cases'], got 'os'" in err
+    rc, _, err = _run(["paper", "--section", "mks_sim.cli"], capsys)
+    assert rc == 2
+
+
+def test_output_dir_checks_before_work(tmp_path: Path) -> None:
+    existing = tmp_path / "file.txt"
+    existing.write_text("x")
+    with pytest.raises(SpecError, match="--out: expected an output folder, got an existing file"):
+        output_dir(existing)
+    with pytest.raises(SpecError, match="no folder .* create it first"):
+        output_dir(tmp_path / "no" / "such" / "dir")
+    assert not (tmp_path / "no").exists()  # no directory tree created
+    if os.geteuid() == 0 or Path("/proc").is_dir():
+        with pytest.raises(SpecError, match="--out: cannot create the folder '/proc/x'"):
+            output_dir("/proc/x")
+    made = output_dir(tmp_path / "out")
+    assert made.is_dir() and output_dir(made) == made  # an existing folder is fine
+
+
+def test_output_file_checks_before_work(tmp_path: Path) -> None:
+    with pytest.raises(SpecError, match=r"--video: expected a file ending in one of \['.gif'"):
+        output_file(tmp_path / "out.txt", "--video", (".gif", ".mp4"))
+    with pytest.raises(SpecError, match="create it first"):
+        output_file("/no/such/dir/x.gif", "--video", (".gif", ".mp4"))
+    assert not Path("/no").exists()
+    (tmp_path / "d.gif").mkdir()
+    with pytest.raises(SpecError, match="got the folder"):
+        output_file(tmp_path / "d.gif", "--video", (".gif",))
+    assert output_file(tmp_path / "v.mp4", "--video", (".gif", ".mp4")).name == "v.mp4"
+
+
+def test_snapshot_out_existing_file_and_proc(capsys, tmp_path) -> None:
+    existing = tmp_path / "f"
+    existing.write_text("keep")
+    rc, out, err = _run(["snapshot", "--scene", "scene2", "--out", str(existing)], capsys)
+    assert rc == 2 and "existing file" in err and existing.read_text() == "keep"
+    _one_line_error(err)
+    rc, out, err = _run(["snapshot", "--scene", "scene2", "--out", "/proc/x"], capsys)
+    assert rc == 2 and "/proc/x" in err
+    _one_line_error(err)
+    rc, out, err = _run(
+        ["snapshot", "--scene", "scene2", "--out", str(tmp_path / "a" / "b")], capsys
+    )
+    assert rc == 2 and not (tmp_path / "a").exists()
+
+
+def test_warnings_are_one_line(capsys, monkeypatch) -> None:
+    import mks_sim.cli.paper as paper
+
+    def noisy(args):
+        warnings.warn("something odd\nover two lines", RuntimeWarning, stacklevel=1)
+        return 0
+
+    monkeypatch.setattr(paper, "run", noisy)
+    rc, out, err = _run(["paper"], capsys)
+    assert rc == 0
+    assert err.strip() == "mks-sim: warning: something odd over two lines (RuntimeWarning)"
+
+
+def test_localize_cloud_degenerate_scene_is_clear_and_fast(capsys, tmp_path) -> None:
+    import time
+
+    np.save(tmp_path / "same.npy", np.tile([0.1, 0.2, 0.8], (3000, 1)))
+    t0 = time.perf_counter()
+    rc, out, err = _run(
+        ["localize-cloud", "--model", "cube_5cm", "--scene", str(tmp_path / "same.npy")], capsys
+    )
+    assert rc == 2 and "expected points spread over a surface" in err
+    assert "fit_plane" not in err and "ransac" not in err
+    _one_line_error(err)
+    assert time.perf_counter() - t0 < 5.0
+
+
+@pytest.mark.parametrize("kind", ["dir", "devnull"])
+def test_localize_cloud_scene_must_be_a_file(kind, capsys, tmp_path) -> None:
+    scene = str(tmp_path) if kind == "dir" else "/dev/null"
+    rc, out, err = _run(["localize-cloud", "--model", "cube_5cm", "--scene", scene], capsys)
+    assert rc == 2 and ("got a folder" in err or "special file" in err)
+    assert "not found" not in err
+    _one_line_error(err)
