@@ -55,6 +55,21 @@ class Recorder(Protocol):
     def log_localization(self, result: Any, *, world: Any = None) -> None:
         """A localization result: kept snapshots' streams, hypotheses, the chosen pose."""
 
+    def log_snapshot(self, snap: Any, readings: Mapping[str, Any] | None = None) -> None:
+        """A snapshot's device readings (and ``readings`` taken outside it), its logical
+        sensor streams, fallbacks and grouping."""
+
+    def log_cloud(
+        self,
+        points: Any,
+        result: Any,
+        *,
+        model_points: Any = None,
+        model_mesh: tuple[np.ndarray, np.ndarray] | None = None,
+        name: str = "model",
+    ) -> None:
+        """A simulator-free localization: scene points, segments, hypotheses."""
+
     def log_truth(self, object_name: str, object_to_world: Any, *, world: Any = None) -> None:
         """Evaluation only: the true pose of ``object_name`` (logged under ``eval/``)."""
 
@@ -102,6 +117,20 @@ class NullRecorder:
 
     def log_localization(self, result: Any, *, world: Any = None) -> None:
         del result, world
+
+    def log_snapshot(self, snap: Any, readings: Mapping[str, Any] | None = None) -> None:
+        del snap, readings
+
+    def log_cloud(
+        self,
+        points: Any,
+        result: Any,
+        *,
+        model_points: Any = None,
+        model_mesh: tuple[np.ndarray, np.ndarray] | None = None,
+        name: str = "model",
+    ) -> None:
+        del points, result, model_points, model_mesh, name
 
     def log_truth(self, object_name: str, object_to_world: Any, *, world: Any = None) -> None:
         del object_name, object_to_world, world

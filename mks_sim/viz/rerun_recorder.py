@@ -222,9 +222,22 @@ class RerunRecorder:
 
     # ------------------------------------------------------------------ sensing
 
+    def log_snapshot(self, snap: Any, readings: Mapping[str, Any] | None = None) -> None:
+        """Device ``readings`` taken outside the snapshot (name -> reading), the devices the
+        snapshot read, then its logical sensor streams, fallbacks and grouping."""
+        readings = dict(readings or {})
+        for name in sorted(snap.devices_read - set(readings)):
+            try:
+                readings[name] = snap.read(name)  # cached by the snapshot: no new reading
+            except MksError:
+                continue
+        for name, reading in readings.items():
+            self.log_reading(name, reading)
+        self._log_snapshot(snap)
+
     def _log_snapshot(self, snap: Any) -> None:
-        """The logical sensor streams a snapshot has evaluated, its fallbacks, the disparity,
-        and the SPG / segmentation of its points."""
+        """The logical sensor streams a snapshot has evaluated, its fallbacks, and the SPG /
+        segmentation of its points."""
         for sensor, attempts in snap.attempts.items():
             for a in attempts:
                 if not a.ok:
@@ -330,6 +343,30 @@ class RerunRecorder:
         mesh = object_mesh(obj, world)
         frame = wireframe(*mesh) if mesh is not None else None
         hyps = tuple(getattr(result, "hypotheses", ()))
+        self._log_hypotheses(base, hyps, frame)
+        T = as_matrix(getattr(result, "object_to_world", None))
+        if T is not None:
+            self._log_pose(f"{base}/chosen", T)
+            if frame is not None:
+                self.rec.log(
+                    f"{base}/chosen/wireframe",
+                    rr.LineStrips3D(list(frame), colors=_CHOSEN, radii=0.0006),
+                )
+        else:
+            self.rec.log(f"{base}/chosen", rr.Clear(recursive=True))
+        diag = getattr(result, "diagnostics", None) or {}
+        found = bool(getattr(result, "found", T is not None))
+        timing = diag.get("timing", {}) if isinstance(diag, dict) else {}
+        self.log_text(
+            f"localize {obj}: {'found' if found else 'NOT FOUND'}, {len(hyps)} hypotheses; "
+            + ", ".join(f"{k} {v:.2f} s" for k, v in timing.items() if isinstance(v, float)),
+            "INFO" if found else "WARN",
+        )
+
+    def _log_hypotheses(self, base: str, hyps: Sequence[Any], frame: np.ndarray | None) -> None:
+        """Every hypothesis as a posed wireframe (or posed model points) with its score, and
+        the Hough maxima (translations, sized by votes); earlier ones are cleared."""
+        self.rec.log(f"{base}/hypotheses", rr.Clear(recursive=True))
         maxima = []
         for k, h in enumerate(hyps):
             T = as_matrix(h.matrix)
@@ -339,33 +376,72 @@ class RerunRecorder:
             votes = int(getattr(h, "votes", 0))
             maxima.append((T[:3, 3], votes, score))
             if frame is not None:
-                self.rec.log(
-                    f"{base}/hypotheses/{k}",
-                    rr.LineStrips3D(list(transform_segments(frame, T)), colors=_HYPOTHESIS,
-                                    radii=0.0003, labels=f"#{k} score {score:.3f} votes {votes}"),
-                )  # fmt: skip
-        if maxima:
-            self.rec.log(
-                f"{base}/hough_maxima",
-                rr.Points3D([m[0] for m in maxima], radii=[0.002 + 0.0002 * min(m[1], 40)
-                            for m in maxima],
-                            labels=[f"votes {m[1]} score {m[2]:.3f}" for m in maxima]),
-            )  # fmt: skip
-        T = as_matrix(getattr(result, "object_to_world", None))
-        if T is not None:
-            self._log_pose(f"{base}/chosen", T)
-            if frame is not None:
-                self.rec.log(
-                    f"{base}/chosen/wireframe",
-                    rr.LineStrips3D(list(frame), colors=_CHOSEN, radii=0.0006),
-                )
-        diag = getattr(result, "diagnostics", None) or {}
-        found = bool(getattr(result, "found", T is not None))
-        timing = diag.get("timing", {}) if isinstance(diag, dict) else {}
+                label = f"#{k} score {score:.3f} votes {votes}"
+                if frame.ndim == 3:
+                    self.rec.log(
+                        f"{base}/hypotheses/{k}",
+                        rr.LineStrips3D(list(transform_segments(frame, T)), colors=_HYPOTHESIS,
+                                        radii=0.0003, labels=label),
+                    )  # fmt: skip
+                else:
+                    pts = frame @ T[:3, :3].T + T[:3, 3]
+                    self.rec.log(f"{base}/hypotheses/{k}",
+                                 rr.Points3D(pts, colors=_HYPOTHESIS, radii=0.0008,
+                                             labels=[label] + [""] * (len(pts) - 1)))  # fmt: skip
+        self.rec.log(
+            f"{base}/hough_maxima",
+            rr.Points3D([m[0] for m in maxima], radii=[0.002 + 0.0002 * min(m[1], 40)
+                        for m in maxima],
+                        labels=[f"votes {m[1]} score {m[2]:.3f}" for m in maxima]),
+        )  # fmt: skip
+
+    # ------------------------------------------------------------------ point clouds
+
+    def log_cloud(
+        self,
+        points: Any,
+        result: Any,
+        *,
+        model_points: Any = None,
+        model_mesh: tuple[np.ndarray, np.ndarray] | None = None,
+        name: str = "model",
+    ) -> None:
+        """A simulator-free localization (``localize_cloud``): the scene points, its object
+        segments (with their vertexes), and every hypothesis posed (model mesh wireframe, or
+        model points when there is no mesh; model coordinates in scene units)."""
+        pts = np.asarray(points, dtype=float)[:, :3]
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        self.rec.log("world/scene/points", rr.Points3D(pts, radii=0.0008, colors=(160,) * 3))
+        base = f"world/localization/{name}"
+        voxel = float(getattr(result, "voxel", 0.0) or 0.0)
+        segments = tuple(getattr(result, "segments", ()))
+        if segments and voxel == 0.0:  # indices refer to the NaN-free input scene
+            seg_pts = [pts[np.asarray(s.indices)] for s in segments]
+            ids = np.concatenate([np.full(len(p), k + 1) for k, p in enumerate(seg_pts)])
+            self.rec.log("world/scene/segments",
+                         rr.Points3D(np.concatenate(seg_pts), class_ids=ids, radii=0.001))
+        verts = [np.asarray(getattr(s.vertexes, "points", np.empty((0, 3))), dtype=float)
+                 for s in segments]  # fmt: skip
+        verts = [v for v in verts if v.ndim == 2 and len(v)]
+        if verts:
+            self.rec.log("world/scene/vertexes", rr.Points3D(np.concatenate(verts), radii=0.002))
+        frame: np.ndarray | None = None
+        if model_mesh is not None:
+            frame = wireframe(*model_mesh)
+        elif model_points is not None:
+            mp = np.asarray(model_points, dtype=float)
+            frame = mp[:: max(1, len(mp) // 2000)]
+        hyps = tuple(getattr(result, "hypotheses", ()))
+        self._log_hypotheses(base, hyps, frame)
+        if getattr(result, "found", False) and hyps:
+            T = as_matrix(hyps[0].matrix)
+            if T is not None:
+                self._log_pose(f"{base}/chosen", T)
+        for w in getattr(result, "warnings", ()):
+            self.log_text(f"localize-cloud: {w}", "WARN")
         self.log_text(
-            f"localize {obj}: {'found' if found else 'NOT FOUND'}, {len(hyps)} hypotheses; "
-            + ", ".join(f"{k} {v:.2f} s" for k, v in timing.items() if isinstance(v, float)),
-            "INFO" if found else "WARN",
+            f"localize-cloud {name}: {'found' if getattr(result, 'found', False) else 'NOT FOUND'}"
+            f", {len(hyps)} hypotheses", "INFO"
         )
 
     def log_truth(self, object_name: str, object_to_world: Any, *, world: Any = None) -> None:
