@@ -148,3 +148,21 @@ def test_localize_cloud_scene_must_be_a_file(kind, capsys, tmp_path) -> None:
     assert rc == 2 and ("got a folder" in err or "special file" in err)
     assert "not found" not in err
     _one_line_error(err)
+
+
+@pytest.mark.parametrize(
+    ("video", "message"),
+    [("out.txt", "expected a file ending in one of"), ("/no/such/dir/x.gif", "create it first")],
+)
+def test_grasp_video_path_checked_before_episodes(video, message, capsys, tmp_path, monkeypatch):
+    import mks_sim.tasks.episode as episode
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("an episode ran before --video was checked")
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(episode, "run_episode", must_not_run)
+    rc, out, err = _run(["grasp", "--object", "cube", "--video", video], capsys)
+    assert rc == 2 and "--video" in err and message in err
+    _one_line_error(err)
+    assert not Path("/no").exists() and list(tmp_path.iterdir()) == []

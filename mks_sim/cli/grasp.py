@@ -8,6 +8,7 @@ import logging
 import sys
 from collections.abc import Sequence
 
+from mks_sim.cli import output_file
 from mks_sim.errors import MksError
 from mks_sim.tasks.backends import BACKENDS, EpisodeJob, check_backend
 
@@ -76,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise MksError(f"--workers: expected >= 1, got {args.workers}")
     check_backend(args.backend, args.address)
+    if args.video:  # checked before any episode runs; no folder is created
+        output_file(args.video, "--video", (".mp4", ".m4v", ".mov", ".gif"))
     seeds = list(range(args.seed, args.seed + args.episodes))
     faults = tuple(args.fail)
     if args.video:
