@@ -31,6 +31,7 @@ import numpy as np
 
 from mks_sim.cli import output_dir
 from mks_sim.errors import MksError, SpecError
+from mks_sim.viz import add_rerun_argument, open_recorder
 
 HELP = "write camera images, disparity, range scan (PLY) and SPG/region/vertex pictures"
 
@@ -50,6 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--fail", nargs="+", action="extend", default=[], metavar="DEVICE",
         help="devices to fail (their logical sensors use alternates)",
     )  # fmt: skip
+    add_rerun_argument(parser)
 
 
 def _save_rgb(path: Path, rgb: np.ndarray) -> None:
@@ -320,6 +322,9 @@ def run(args: argparse.Namespace) -> int:
                 draw_planes(out / "planes.png", pts, verts, ctrl)
                 written.append("planes.png")
         provenance = dict(snap.provenance)
+        with open_recorder(args.rerun, "mks_sim snapshot") as recorder:
+            recorder.log_world(world)
+            recorder.log_snapshot(snap, frames)
     print(f"wrote {len(written)} files to {out}: {', '.join(written)}")
     print("logical sensors: " + ", ".join(f"{k} <- {v}" for k, v in sorted(provenance.items())))
     return 0
