@@ -49,8 +49,12 @@ class RepresentationConfig:
     Attributes:
         table_z_m: nominal table height (a sensor calibration parameter): the table plane is
             searched near it; None searches the dominant plane anywhere.
+        table_margin_m: object points lie more than this above the table (0: above its
+            fitted band, 3 sigma of the table's residuals).
         gap_m: SPG edges longer than this do not join objects (None: 4 x the spacing).
         m: SPG neighbours.
+        min_region_points: smallest planar region of the segmentation (a few-millimetre cap
+            of a sphere is flat within the region growing's tolerances; 40 points keep it out).
         voxel: ``"auto"`` averages noisy or very dense clouds on a voxel grid (see
             :meth:`Representation.voxel`), a number forces that edge, None never averages.
         max_points: point budget of ``voxel="auto"``.
@@ -59,8 +63,10 @@ class RepresentationConfig:
     """
 
     table_z_m: float | None = None
+    table_margin_m: float = 0.0
     gap_m: float | None = None
     m: int = 12
+    min_region_points: int = 40
     voxel: float | str | None = "auto"
     max_points: int = 30000
     viewpoint: tuple[float, float, float] | None = None
@@ -225,10 +231,11 @@ class Representation:
     @cached_property
     def object_indices(self) -> IntArray:
         """Indices (into :attr:`points`) of the points off the table, on its object side."""
-        table, _, band = self._table
+        table, thr, band = self._table
         keep = np.flatnonzero(~band)
         if table is not None:
-            keep = keep[table.distance(self.points[keep]) > 0]
+            margin = self.config.table_margin_m
+            keep = np.flatnonzero(table.distance(self.points) > (margin if margin > 0 else thr))
         return keep
 
     @cached_property
@@ -244,26 +251,36 @@ class Representation:
 
     @cached_property
     def graph(self) -> Any:
-        """SPG of :attr:`objects` (``m`` neighbours, edges <= :attr:`gap`)."""
+        """SPG of :attr:`objects` (``m`` nearest neighbours)."""
         from mks_sim.lowlevel.spg import SpatialProximityGraph
 
-        return SpatialProximityGraph(self.objects, m=self.config.m, threshold=self.gap)
-
-    @cached_property
-    def _adjacency(self) -> Any:
-        from scipy import sparse
-
-        return sparse.csr_array(self.graph.adjacency)
+        return SpatialProximityGraph(self.objects, m=self.config.m)
 
     @cached_property
     def labels(self) -> IntArray:
-        """(K,) SPG component of each object point."""
+        """(K,) object (SPG component over edges <= :attr:`gap`) of each object point."""
+        from scipy import sparse
         from scipy.sparse import csgraph
 
         if len(self.objects) == 0:
             return np.zeros(0, dtype=np.intp)
-        _, comp = csgraph.connected_components(self._adjacency, directed=True, connection="weak")
+        adj = sparse.csr_array(self.graph.adjacency).tocoo()
+        short = adj.data <= self.gap
+        joined = sparse.csr_array(
+            (np.ones(int(short.sum())), (adj.row[short], adj.col[short])), shape=adj.shape
+        )
+        _, comp = csgraph.connected_components(joined, directed=True, connection="weak")
         return np.asarray(comp, dtype=np.intp)
+
+    @cached_property
+    def _adjacency(self) -> Any:
+        """The SPG without the edges between objects (the neighbourhoods of grouping)."""
+        from scipy import sparse
+
+        adj = sparse.csr_array(self.graph.adjacency).tocoo()
+        lab = self.labels
+        same = lab[adj.row] == lab[adj.col]
+        return sparse.csr_array((adj.data[same], (adj.row[same], adj.col[same])), shape=adj.shape)
 
     def components(self, min_points: int = 30) -> list[IntArray]:
         """Object-point indices of each SPG component with at least ``min_points``, largest
@@ -318,7 +335,11 @@ class Representation:
         from mks_sim.lowlevel.regions import segment_surfaces
 
         return segment_surfaces(
-            self.objects, _Fixed(self._adjacency), surface_normals=self.normals, seeds="planar"
+            self.objects,
+            _Fixed(self._adjacency),
+            surface_normals=self.normals,
+            seeds="planar",
+            min_points=self.config.min_region_points,
         )
 
     def planes_of(self, component: IntArray, min_points: int = 20) -> list[Any]:
