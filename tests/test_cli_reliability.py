@@ -166,3 +166,18 @@ def test_grasp_video_path_checked_before_episodes(video, message, capsys, tmp_pa
     assert rc == 2 and "--video" in err and message in err
     _one_line_error(err)
     assert not Path("/no").exists() and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_localize_with_every_point_source_failed_is_a_clean_not_found(capsys) -> None:
+    import json
+
+    argv = ["localize", "--object", "cube", "--json", "--fail", "range_finder", "stereo_left",
+            "depth_camera"]  # fmt: skip
+    rc, out, err = _run(argv, capsys)
+    assert rc == 1 and "Traceback" not in err
+    doc = json.loads(out)
+    assert doc["found"] is False and doc["matrix"] is None and doc["success"] is False
+    assert doc["failed_devices"] == ["range_finder", "stereo_left", "depth_camera"]
+    for name in ("Range_Points", "range_finder", "stereo_left", "depth_camera"):
+        assert name in doc["failure"]

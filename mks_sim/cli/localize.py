@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from mks_sim.errors import SpecError
+from mks_sim.errors import DeviceFailure, SensorFailure, SpecError
 from mks_sim.viz import NullRecorder, Recorder, add_rerun_argument, open_recorder
 
 HELP = "localize the cube, sphere or part from simulated sensors; estimate, truth and error"
@@ -99,8 +100,9 @@ def run_trial(
 
     Returns:
         ``{"object", "scene", "seed", "found", "matrix", "truth", "error": {"position_mm",
-        "rotation_deg"}, "success", "provenance", "time_s"}`` (matrices 4x4 column
-        convention, world frame, metres; errors None when not found).
+        "rotation_deg"}, "success", "provenance", "time_s", "failed_devices", "failure"}``
+        (matrices 4x4 column convention, world frame, metres; errors None when not found;
+        ``failure`` names the fault when a needed logical sensor had no working way).
     """
     from mks_sim.devices import DeviceFaults, make_devices
     from mks_sim.geometry.transforms import cube_rotations, pose_error
@@ -114,6 +116,8 @@ def run_trial(
     devices = make_devices(world.model, world.data, np.random.default_rng(seed), faults)
     rec = recorder if recorder is not None else NullRecorder()
     rec.log_world(world)
+    failure: str | None = None
+    t0 = time.perf_counter()
     try:
         result = localize_object(
             world, obj, rec.tap_devices(devices), rng=np.random.default_rng(seed),
@@ -121,6 +125,10 @@ def run_trial(
         )  # fmt: skip
         rec.log_localization(result, world=world)
         rec.log_camera_views()
+    except (SensorFailure, DeviceFailure) as exc:
+        # Every way of a needed logical sensor failed (e.g. all point sources): a clean
+        # "not found" naming the fault, as `grasp` reports it, not a bad-input error.
+        result, failure = None, str(exc)
     finally:
         devices.close()
     # Evaluation only: the ground truth is read after localization.
@@ -128,7 +136,8 @@ def run_trial(
     rec.log_truth(obj, T_true, world=world)
     pos_mm: float | None = None
     rot_deg: float | None = None
-    if result.found and result.object_to_world is not None:
+    found = result is not None and bool(result.found)
+    if result is not None and result.found and result.object_to_world is not None:
         syms = cube_rotations() if obj == "cube" else None
         p, r = pose_error(result.object_to_world, T_true, syms)
         pos_mm = 1000.0 * p
@@ -143,17 +152,18 @@ def run_trial(
         "object": obj,
         "scene": scene,
         "seed": seed,
-        "found": bool(result.found),
-        "matrix": _round_matrix(result.object_to_world),
+        "found": found,
+        "matrix": None if result is None else _round_matrix(result.object_to_world),
         "truth": _round_matrix(T_true),
         "error": {
             "position_mm": None if pos_mm is None else round(pos_mm, 4),
             "rotation_deg": None if rot_deg is None else round(rot_deg, 4),
         },
         "success": bool(success),
-        "provenance": dict(result.provenance),
-        "time_s": round(float(result.time_s), 4),
+        "provenance": {} if result is None else dict(result.provenance),
+        "time_s": round(float(time.perf_counter() - t0 if result is None else result.time_s), 4),
         "failed_devices": list(fail),
+        "failure": failure,
     }
 
 
@@ -184,6 +194,8 @@ def format_text(rec: dict[str, Any]) -> str:
     lines.append(f"logical sensors: {served}")
     if rec["failed_devices"]:
         lines.append(f"failed devices: {', '.join(rec['failed_devices'])}")
+    if rec.get("failure"):
+        lines.append(f"failure: {rec['failure']}")
     lines.append(f"time: {rec['time_s']:.2f} s")
     return "\n".join(lines)
 
@@ -196,6 +208,7 @@ def run(args: argparse.Namespace) -> int:
         out = {k: rec[k] for k in ("object", "found", "matrix", "truth", "error", "provenance")}
         out["time_s"] = rec["time_s"]
         out.update(scene=rec["scene"], seed=rec["seed"], success=rec["success"])
+        out.update(failed_devices=rec["failed_devices"], failure=rec["failure"])
         print(json.dumps(out, allow_nan=False))
     else:
         print(format_text(rec))
