@@ -593,3 +593,34 @@ def test_missing_program_module_is_a_spec_error_but_broken_import_propagates(
 def test_data_error_from_bad_stream_inputs() -> None:
     with pytest.raises(DataError):
         VEC1.validate(np.zeros((2, 2)))
+
+
+# --------------------------------------------------------------------------- touch alternates
+
+
+def _pad(name: str, x: float, *, fail: bool = False) -> FakeDevice:
+    from types import SimpleNamespace
+
+    reading = SimpleNamespace(
+        pressure=np.array([0.0, 2000.0, 800.0]),
+        positions_world=np.array([[x, 0.0, 1.0], [x, 0.01, 1.0], [x, 0.02, 1.0]]),
+    )
+    return FakeDevice(name, reading, fail=fail)
+
+
+@pytest.mark.parametrize("failed", [None, 1, 2, 3])
+def test_touch_contacts_survive_one_failed_pad(failed: int | None) -> None:
+    """Through the installed sensor graph: a failed pad is named by the alternate that served,
+    and the remaining pads still report their contacts (2 taxels above 500 Pa per pad)."""
+    graph = SensorGraph.from_dir()
+    x = {1: -0.02, 2: 0.02, 3: 0.03}  # finger 1 opposes fingers 2 and 3
+    pads = {f"touch_finger_{i}": _pad(f"touch_finger_{i}", x[i], fail=i == failed) for i in x}
+    snap = graph.snapshot(pads)
+    data = snap.get("Touch_Contacts").data
+    alive = [i for i in x if i != failed]
+    assert len(data) == 2 * len(alive)
+    assert sorted(set(np.round(data[:, 0], 3))) == sorted(x[i] for i in alive)
+    served = snap.provenance["Touch_Contacts"]
+    assert served == ("primary" if failed is None else f"Without_Pad_{failed}")
+    if failed in (2, 3):  # both sides of the grasp still touched
+        assert (data[:, 0] < 0).any() and (data[:, 0] > 0).any()
