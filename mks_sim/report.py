@@ -1,7 +1,7 @@
 """Reports: stage images (matplotlib, Agg backend), videos (imageio) and summary tables.
 
-Videos are MP4 when ``imageio-ffmpeg`` is installed, GIF (Pillow) otherwise; a request for
-``.mp4`` without it writes ``.gif`` beside it and says so.
+Videos are MP4 through ``imageio-ffmpeg`` (a runtime dependency); GIF (Pillow) only when the
+path ends in ``.gif``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from mks_sim.errors import DataError
+from mks_sim.errors import DataError, MksError
 
 logger = logging.getLogger(__name__)
 
@@ -29,13 +29,15 @@ def has_ffmpeg() -> bool:
 
 
 def write_video(frames: Sequence[np.ndarray], path: str | Path, fps: float = 15.0) -> Path:
-    """Write (H, W, 3) uint8 frames to ``path`` (MP4 or GIF by suffix).
+    """Write (H, W, 3) uint8 frames to ``path``: GIF when it ends in ``.gif``, else MP4
+    (H.264 through ``imageio-ffmpeg``; ``.mp4``, ``.m4v``, ``.mov``).
 
     Returns:
-        The path written (``.gif`` instead of ``.mp4`` when ffmpeg is missing).
+        The path written.
 
     Raises:
         DataError: no frames, or frames of different shapes.
+        MksError: a video suffix and ``imageio-ffmpeg`` is not installed.
     """
     import imageio.v3 as iio
 
@@ -46,10 +48,11 @@ def write_video(frames: Sequence[np.ndarray], path: str | Path, fps: float = 15.
         raise DataError(f"video {path}: frames must all be (H, W, 3); first is {shape}")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    if path.suffix.lower() in (".mp4", ".m4v", ".mov") and not has_ffmpeg():
-        new = path.with_suffix(".gif")
-        logger.warning("imageio-ffmpeg is not installed: writing %s instead of %s", new, path)
-        path = new
+    if path.suffix.lower() != ".gif" and not has_ffmpeg():
+        raise MksError(
+            f"video {path}: MP4 needs imageio-ffmpeg, which is not installed; run "
+            "`pip install imageio-ffmpeg==0.8.1` or ask for a .gif"
+        )
     stack = np.stack([np.asarray(f, dtype=np.uint8) for f in frames])
     if path.suffix.lower() == ".gif":
         iio.imwrite(path, stack, duration=1000.0 / fps, loop=0)

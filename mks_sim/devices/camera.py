@@ -168,6 +168,10 @@ class Camera(SimDevice):
                 self._state.depth_renderer = self._make_renderer()
                 self._state.depth_renderer.enable_depth_rendering()
             _OPEN_RENDERERS.add(self)
+            # mujoco.egl registers eglTerminate at exit when it makes its first context;
+            # exit hooks run last-registered first, so ours must follow it (issue 11 §4).
+            atexit.unregister(_close_all_renderers)
+            atexit.register(_close_all_renderers)
         return self._state.renderer, self._state.depth_renderer
 
     def _make_renderer(self) -> mujoco.Renderer:

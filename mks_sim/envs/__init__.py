@@ -1,25 +1,32 @@
 """Gymnasium environments of mks_sim.
 
-``import mks_sim`` registers them; gymnasium's plugin loader (the ``gymnasium.envs`` entry
-point ``mks_sim = "mks_sim.envs:register_envs"``) does too, so both
-``gymnasium.make("mks_sim/Grasp-v0", object="cube")`` (after ``import mks_sim``) and
-``gymnasium.make("mks_sim:mks_sim/Grasp-v0")`` work.
+``import mks_sim`` registers them, so ``gymnasium.make("mks_sim/Grasp-v1", object="cube")``
+works after it and ``gymnasium.make("mks_sim:mks_sim/Grasp-v1")`` works without it.
+
+- ``mks_sim/Grasp-v0``: binary grip (``action[4] < 0`` opens, ``>= 0`` closes).
+- ``mks_sim/Grasp-v1``: continuous grip (``action[4]`` is the finger velocity, a fraction of
+  the actuator range); the scripted policy closes gently until touch, as the full loop does.
 """
 
 from __future__ import annotations
 
-ENV_IDS = ("mks_sim/Grasp-v0",)
+ENV_IDS = ("mks_sim/Grasp-v0", "mks_sim/Grasp-v1")
+_ENTRY_POINTS = {
+    "mks_sim/Grasp-v0": "mks_sim.envs.grasp_env:GraspEnv",
+    "mks_sim/Grasp-v1": "mks_sim.envs.grasp_env:GraspEnvV1",
+}
 
 
 def register_envs() -> None:
-    """Register ``mks_sim/Grasp-v0`` with gymnasium (idempotent)."""
+    """Register ``mks_sim/Grasp-v0`` and ``-v1`` with gymnasium (idempotent)."""
     import gymnasium
 
-    if "mks_sim/Grasp-v0" in gymnasium.registry:
-        return
-    gymnasium.register(
-        id="mks_sim/Grasp-v0",
-        entry_point="mks_sim.envs.grasp_env:GraspEnv",
-        max_episode_steps=200,
-        kwargs={"object": "cube"},
-    )
+    for env_id, entry_point in _ENTRY_POINTS.items():
+        if env_id in gymnasium.registry:
+            continue
+        gymnasium.register(
+            id=env_id,
+            entry_point=entry_point,
+            max_episode_steps=200,
+            kwargs={"object": "cube"},
+        )

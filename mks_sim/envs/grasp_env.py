@@ -1,7 +1,10 @@
-"""``mks_sim/Grasp-v0``: the workstation as a gymnasium environment.
+"""``mks_sim/Grasp-v0`` and ``mks_sim/Grasp-v1``: the workstation as a gymnasium environment.
 
 The agent moves the Jaco's pinch point (Cartesian deltas and a yaw delta; the arm follows
-through dm_control IK) and opens / closes the hand. It observes the logical-sensor outputs:
+through a damped-least-squares IK step on the raw MuJoCo model, :mod:`mks_sim.sim.ik`) and
+drives the hand: v0 opens / closes it (binary grip), v1 commands the finger velocity
+(continuous grip, a fraction of the finger actuators' range). It observes the logical-sensor
+outputs:
 the localization estimate of the object (sensed at ``reset``, and again every
 ``resense_every`` steps when asked), the fingertip touch pads and the arm's proprioception;
 camera images, depth and range points only when the constructor asks for them.
@@ -14,12 +17,16 @@ Example:
 
 Reward and ``info`` are evaluation (ground truth): ``info["success"]`` is the issue-#5
 criterion (object >= 8 cm above the table held for 1 s); the reward is that success (1.0)
-minus a small distance-to-object shaping term.
+minus a small distance-to-object shaping term. ``info`` after ``reset`` also has
+``reset_timing_s`` (``localization``, ``other``, ``total``, wall-clock seconds).
 """
 
 from __future__ import annotations
 
+import atexit
 import math
+import time
+import weakref
 from collections.abc import Iterable
 from typing import Any
 
@@ -30,7 +37,8 @@ from gymnasium import spaces
 
 from mks_sim.errors import MksError, NotFound
 from mks_sim.sim import names
-from mks_sim.tasks.controller import ArmHandController, RobotNames
+from mks_sim.sim.ik import SiteIK
+from mks_sim.tasks.controller import ArmHandController, RobotNames, quat_down
 from mks_sim.tasks.episode import (
     OBJECTS,
     LocalizeFn,
@@ -45,11 +53,40 @@ from mks_sim.tasks.spec import task_for_object
 MAX_STEP_M = 0.02  # pinch-point motion per step at |action| = 1
 MAX_YAW_RAD = 0.15
 CONTROL_PERIODS_PER_STEP = 5  # 5 x 20 ms = 0.1 s of simulated time per env step
+# A step moves the target <= 2 cm and 0.15 rad from the last solution: DLS converges in 2-3
+# iterations (measured); 20 leaves room for the reachable-set boundary.
+IK_MAX_ITERS = 20
 _INF = np.inf
+_OPEN_ENVS: weakref.WeakSet[GraspEnv] = weakref.WeakSet()
+
+
+def _close_open_envs() -> None:
+    # Unclosed envs release their EGL renderers before mujoco.egl's eglTerminate exit hook
+    # (registered when the first context is made; see _keep_exit_hook_last).
+    for env in list(_OPEN_ENVS):
+        env.close()
+
+
+def _keep_exit_hook_last() -> None:
+    # Exit hooks run last-registered first: re-registering after a renderer was made puts
+    # ours ahead of eglTerminate, so an env that is never closed exits without tracebacks.
+    atexit.unregister(_close_open_envs)
+    atexit.register(_close_open_envs)
+
+
+def _positive_size(value: Any, field: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in value)
+    except (TypeError, ValueError) as exc:
+        raise MksError(f"{field}: expected (width, height) of two ints, got {value!r}") from exc
+    if w <= 0 or h <= 0:
+        raise MksError(f"{field}: expected (width, height) > 0 pixels, got {value!r}")
+    return w, h
 
 
 class GraspEnv(gym.Env):
-    """Pick up ``object`` (``cube`` | ``sphere`` | ``part``) from the workstation table.
+    """``mks_sim/Grasp-v0``: pick up ``object`` (``cube`` | ``sphere`` | ``part``) from the
+    workstation table; binary grip (``action[4] < 0`` opens at full speed, ``>= 0`` closes).
 
     Args:
         object: which grasp task (``tasks/grasp_<object>.toml``).
@@ -69,6 +106,7 @@ class GraspEnv(gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    continuous_grip = False  # what action[4] means (read by the scripted policy)
 
     def __init__(
         self,
@@ -89,6 +127,10 @@ class GraspEnv(gym.Env):
             raise NotFound(f"unknown object {object!r}; expected one of {OBJECTS}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise MksError(f"render_mode: expected None or 'rgb_array', got {render_mode!r}")
+        image_size = _positive_size(image_size, "image_size")
+        render_size = _positive_size(render_size, "render_size")
+        if int(n_points) < 1:
+            raise MksError(f"n_points: expected >= 1, got {n_points!r}")
         self._kwargs = dict(
             object=object, render_mode=render_mode, faults=tuple(faults),
             observe_image=observe_image, observe_depth=observe_depth,
@@ -110,6 +152,11 @@ class GraspEnv(gym.Env):
         self.render_size = (int(render_size[0]), int(render_size[1]))
         self.world = build_world(self.task.scene)
         self._names = RobotNames.from_model(self.world.model)
+        # ArmHandController's default 20 ms control period in model timesteps.
+        self._ctl_substeps = max(1, round(0.02 / self.world.model.opt.timestep))
+        m = self.world.model
+        self._arm_dofs = np.array([m.jnt_dofadr[m.joint(j).id] for j in self._names.arm_joints])
+        self._ik = SiteIK(self.world.model, self._names.pinch_site, self._names.arm_joints)
         self._devices: Any = None
         self._renderer: mujoco.Renderer | None = None
         self._ctl: ArmHandController | None = None
@@ -146,6 +193,7 @@ class GraspEnv(gym.Env):
         self._yaw = 0.0
         self._steps = 0
         self._held_steps = 0
+        _OPEN_ENVS.add(self)
 
     # --- pickling: rebuild from the constructor arguments ---------------------------------
     def __getstate__(self) -> dict[str, Any]:
@@ -154,11 +202,17 @@ class GraspEnv(gym.Env):
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__init__(**state)  # type: ignore[misc]
 
+    @property
+    def dt(self) -> float:
+        """Simulated seconds per env step (as gymnasium's ``MujocoEnv.dt``)."""
+        return float(CONTROL_PERIODS_PER_STEP * self._ctl_substeps * self.world.model.opt.timestep)
+
     # --- gymnasium API --------------------------------------------------------------------
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, Any], dict[str, Any]]:
         super().reset(seed=seed)
+        t_start = time.perf_counter()
         from mks_sim.devices.factory import make_devices
         from mks_sim.devices.faults import DeviceFaults
 
@@ -191,31 +245,42 @@ class GraspEnv(gym.Env):
         self._yaw = self._ctl.pinch_yaw()
         self._steps = 0
         self._held_steps = 0
+        t_sense = time.perf_counter()
         self._sense()
-        return self._observation(), self._info()
+        t_sensed = time.perf_counter()
+        obs, info = self._observation(), self._info()
+        _keep_exit_hook_last()  # the devices may have made their first EGL contexts
+        total = time.perf_counter() - t_start
+        info["reset_timing_s"] = {
+            "localization": t_sensed - t_sense,
+            "other": total - (t_sensed - t_sense),
+            "total": total,
+        }
+        return obs, info
 
     def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
         if self._ctl is None:
             raise MksError("GraspEnv.step() before reset()")
-        a = np.clip(np.asarray(action, dtype=float).reshape(5), -1.0, 1.0)
+        a = _checked_action(action)  # before any state changes: a bad action changes nothing
         ctl = self._ctl
         self._target = self._target + a[:3] * MAX_STEP_M
         self._target[2] = max(self._target[2], names.TABLE_TOP_Z + 0.01)
         self._yaw = float((self._yaw + a[3] * MAX_YAW_RAD + math.pi) % (2 * math.pi) - math.pi)
-        q, ok = ctl.solve_ik(self._target, self._yaw, max_steps=60)
-        if ok:
-            ctl.q_target = q
-        else:  # unreachable: stay where the arm is
-            self._target = ctl.pinch_pos()
-        ctl.grip = 1.0 if a[4] >= 0 else -1.0
+        # Warm-started at the last commanded joints: the commanded path stays continuous
+        # (no unlimited joint jumps a turn) and DLS needs 2-3 iterations.
+        res = self._ik.solve(self.world.data.qpos, self._target, quat_down(self._yaw),
+                             q_init=ctl.q_target, max_iters=IK_MAX_ITERS)  # fmt: skip
+        ctl.q_target = res.qpos  # limited joints clamped: the reachable point nearest the target
+        if not res.converged:  # out of reach: the target follows what the arm can reach
+            self._target = res.site_pos
+        ctl.grip = self._grip(float(a[4]))
         ctl.step(CONTROL_PERIODS_PER_STEP)
         self._steps += 1
         if self.resense_every and self._steps % self.resense_every == 0:
             self._sense()
-        clearance = self._clearance()
+        clearance = self._clearance()  # ground truth, evaluation only: success and info
         self._held_steps = self._held_steps + 1 if clearance >= MIN_CLEARANCE_M else 0
-        step_s = CONTROL_PERIODS_PER_STEP * ctl.n_sub * self.world.model.opt.timestep
-        success = self._held_steps * step_s >= HOLD_S - 1e-9
+        success = self._held_steps * self.dt >= HOLD_S - 1e-9
         dist = float(np.linalg.norm(ctl.pinch_pos() - self.world.data.body(self.object).xpos))
         reward = (1.0 if success else 0.0) - 0.1 * dist
         truncated = self._steps >= self.max_episode_steps and not success
@@ -224,7 +289,7 @@ class GraspEnv(gym.Env):
             float(reward),
             bool(success),
             bool(truncated),
-            self._info(success),
+            self._info(success, clearance),
         )
 
     def render(self) -> np.ndarray | None:
@@ -233,6 +298,7 @@ class GraspEnv(gym.Env):
         w, h = self.render_size
         if self._renderer is None:
             self._renderer = mujoco.Renderer(self.world.model, height=h, width=w)
+            _keep_exit_hook_last()
         cam = mujoco.MjvCamera()
         cam.lookat[:] = (0.0, 0.1, names.TABLE_TOP_Z + 0.1)
         cam.distance, cam.azimuth, cam.elevation = 1.1, 150.0, -25.0
@@ -246,8 +312,13 @@ class GraspEnv(gym.Env):
         if self._devices is not None:
             self._devices.close()
             self._devices = None
+        _OPEN_ENVS.discard(self)
 
     # --- internals ------------------------------------------------------------------------
+    def _grip(self, command: float) -> float:
+        """The controller's grip (-1 open .. +1 close at full finger speed) for ``action[4]``."""
+        return 1.0 if command >= 0 else -1.0
+
     def _sense(self) -> None:
         fn = self._localize_override or sensor_localize_fn(self._devices)
         self._estimate = fn(self.world, self.object)
@@ -264,7 +335,7 @@ class GraspEnv(gym.Env):
         est = self._estimate
         touch = np.nan_to_num(ctl.touch(), nan=-1.0)
         d = self.world.data
-        qvel = np.array([d.joint(j).qvel[0] for j in self._names.arm_joints])
+        qvel = d.qvel[self._arm_dofs].copy()
         obs: dict[str, Any] = {
             "pose_estimate": np.clip(est, -10, 10) if est is not None else np.zeros((4, 4)),
             "pose_valid": np.array([est is not None], dtype=np.int8),
@@ -331,7 +402,7 @@ class GraspEnv(gym.Env):
         out[: len(pts)] = pts
         return out, np.array([len(pts)])
 
-    def _info(self, success: bool = False) -> dict[str, Any]:
+    def _info(self, success: bool = False, clearance: float | None = None) -> dict[str, Any]:
         err = self._loc_error
         return {
             "success": bool(success),
@@ -339,8 +410,37 @@ class GraspEnv(gym.Env):
                 "position_mm": err.position_mm,
                 "rotation_deg": err.rotation_deg,
             },
-            "clearance_m": self._clearance(),
+            "clearance_m": self._clearance() if clearance is None else clearance,
         }
+
+
+class GraspEnvV1(GraspEnv):
+    """``mks_sim/Grasp-v1``: v0 with a continuous grip.
+
+    ``action[4]`` in [-1, 1] is the finger velocity as a fraction of the finger actuators'
+    range (+1 closes at full speed, -1 opens at full speed, 0 holds the fingers where they
+    are), so a policy can close gently until the pads touch and then squeeze. Everything
+    else is as in :class:`GraspEnv`.
+    """
+
+    continuous_grip = True
+
+    def _grip(self, command: float) -> float:
+        return command
+
+
+def _checked_action(action: Any) -> np.ndarray:
+    """(5,) float action clipped to [-1, 1]; ValueError for a wrong shape or NaN / Inf."""
+    a = np.asarray(action, dtype=float)
+    if a.size != 5:
+        raise ValueError(f"action: expected 5 numbers (dx, dy, dz, dyaw, grip), got {a.shape}")
+    a = a.reshape(5)
+    if not np.all(np.isfinite(a)):
+        raise ValueError(
+            f"action: expected finite numbers (dx, dy, dz, dyaw, grip), got {a.tolist()}; "
+            "the step was not taken and the env is unchanged"
+        )
+    return np.clip(a, -1.0, 1.0)
 
 
 def _resize(image: np.ndarray, w: int, h: int) -> np.ndarray:
