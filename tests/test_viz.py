@@ -167,3 +167,35 @@ def test_logging_off_imports_no_rerun() -> None:
                          check=True, timeout=300)  # fmt: skip
     result = json.loads(out.stdout.strip().splitlines()[-1])
     assert result == {"rc": 0, "rerun": False}
+
+
+def test_localize_cloud_recording_reads_back(tmp_path: Path) -> None:
+    from mks_sim.geometry.scan import synthetic_scan
+    from mks_sim.geometry.transforms import make_transform
+    from mks_sim.io.mesh import write_stl
+    from mks_sim.io.pointcloud import write_ply
+
+    size = 0.05
+    table = (box_mesh((0.6, 0.6, 0.02)), make_transform(np.eye(3), [0.0, 0.0, -0.01]))
+    c, s = np.cos(0.4), np.sin(0.4)
+    T = make_transform(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), [0.01, -0.02, size / 2])
+    pts = synthetic_scan(box_mesh(size), T, np.array([0.35, 0.25, 0.4]), [0.0, 0.0, 0.0],
+                         width=200, height=150, fov_deg=30, noise_sigma=0.0002,
+                         rng=np.random.default_rng(0), extra=[table])  # fmt: skip
+    write_ply(tmp_path / "scan.ply", pts)
+    write_stl(tmp_path / "cube.stl", box_mesh(size))
+    path = tmp_path / "cloud.rrd"
+    args = ["localize-cloud", "--model", str(tmp_path / "cube.stl"), "--scene",
+            str(tmp_path / "scan.ply"), "--json", "--rerun", f"save:{path}"]  # fmt: skip
+    assert main(args) == 0
+    rec = read_recording(path)
+    scene = np.asarray(last(rec, "/world/scene/points", "Points3D:positions"))
+    assert scene.shape == (int(np.all(np.isfinite(pts), axis=1).sum()), 3)
+    hyps = sorted(e for e in rec if e.startswith("/world/localization/cube/hypotheses/"))
+    assert hyps
+    # the best hypothesis's posed model points lie on the true cube's surface (brute force:
+    # distance to the box in the true object frame)
+    posed = np.asarray(last(rec, hyps[0], "Points3D:positions"))
+    local = (posed - T[:3, 3]) @ T[:3, :3]
+    outside = np.linalg.norm(np.maximum(np.abs(local) - size / 2, 0), axis=1)
+    assert outside.max() < 0.002 and np.abs(np.abs(local).max(axis=1) - size / 2).max() < 0.002

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from mks_sim.errors import DataError, MksError
+from mks_sim.viz import add_rerun_argument, open_recorder
 
 HELP = "localize a model (database name, mesh or point file) in a point cloud file"
 
@@ -60,6 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--max-hypotheses", type=int, default=5, help="hypotheses reported (default 5)"
     )
+    add_rerun_argument(parser)
 
 
 def _result_json(loc: Any, n_points: int, dropped: int) -> dict[str, Any]:
@@ -145,6 +147,10 @@ def run(args: argparse.Namespace) -> int:
         raise
     except (ValueError, np.linalg.LinAlgError) as exc:  # degenerate data deep in numpy
         raise DataError(f"{args.scene}: cannot localize in this cloud: {exc}") from exc
+    with open_recorder(args.rerun, "mks_sim localize-cloud") as recorder:
+        model_points = np.asarray(getattr(model, "points", np.empty((0, 3))), dtype=float)
+        recorder.log_cloud(cloud.points, loc, model_points=model_points * args.scale,
+                           name=str(getattr(model, "name", "model")))  # fmt: skip
     dropped = int(cloud.dropped_nan) + int(loc.dropped_nan)
     result = _result_json(loc, len(cloud.points) + int(cloud.dropped_nan), dropped)
     if args.json:
