@@ -12,6 +12,7 @@ from mks_sim.cli import main
 ASSETS = Path(__file__).parent / "assets" / "sensors"
 GOOD = ASSETS / "good"
 BAD = ASSETS / "bad"
+SENSORS = Path(__file__).parents[1] / "sensors"
 
 
 def test_lists_sensors_with_inputs_program_output_and_alternates(
@@ -145,3 +146,21 @@ def test_check_json_reports_errors(capsys: pytest.CaptureFixture[str]) -> None:
 def test_check_missing_file(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["sensors", "--check", str(ASSETS / "nope.toml")]) == 2
     assert "sensor file not found" in capsys.readouterr().err
+
+
+def test_model_naming_an_unknown_sensor_is_an_error(tmp_path, capsys, monkeypatch) -> None:
+    monkeypatch.delenv("MKS_SIM_MODELS", raising=False)
+    (tmp_path / "bad.toml").write_text(
+        '[[model]]\nname = "bad_c"\nkind = "feature"\nsensor = "No_Such_Sensor"\n'
+        "reference = [1, 2, 3]\nthreshold = 0.1\n"
+    )
+    rc = main(["sensors", "--check", str(SENSORS / "touch.toml"), "--models", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert f"{tmp_path / 'bad.toml'}: model 'bad_c': field 'sensor': expected one of the " in err
+    assert "got 'No_Such_Sensor'" in err and "'Circle_Detector'" in err
+    # the installed models all name existing sensors (10 references today, at least 8)
+    assert main(["sensors", "--check", str(SENSORS / "touch.toml")]) == 0
+    out = capsys.readouterr().out
+    n = int(out.split("; ")[-1].split()[0])
+    assert n >= 8

@@ -34,6 +34,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="validate one sensor file against the installed devices and sensors",
     )
     parser.add_argument(
+        "--models",
+        metavar="DIR",
+        action="append",
+        default=[],
+        help="also check that the model files of DIR (with the built-in ones and "
+        "MKS_SIM_MODELS; always with --check) name only existing logical sensors",
+    )
+    parser.add_argument(
         "--dir",
         metavar="DIR",
         type=Path,
@@ -126,6 +134,8 @@ def _check(args: argparse.Namespace) -> int:
             if p.name != target.name and p.resolve() != target.resolve()
         ]
         graph = SensorGraph.from_files([*others, target])
+        # the model database is checked against the installed sensors (or with --models)
+        n_refs = _check_models(graph, args.models) if args.dir is None or args.models else None
     except MksError as exc:
         if args.json:
             print(json.dumps({"ok": False, "file": str(target), "error": str(exc)}))
@@ -150,11 +160,22 @@ def _check(args: argparse.Namespace) -> int:
         + (f" ({', '.join(names)})" if names else "")
         + f", {len(loaded.devices)} device(s); checked with {len(graph)} sensor(s) and "
         f"{len(graph.device_names)} device(s) from {folder}"
+        + ("" if n_refs is None else f"; {n_refs} model sensor reference(s) ok")
     )
     return 0
+
+
+def _check_models(graph: SensorGraph, extra: list[Path] | list[str]) -> int:
+    """Check the model files (built-in, ``--models``, ``MKS_SIM_MODELS``) against ``graph``."""
+    from mks_sim.models.objects import models_dirs
+
+    files = [f for folder in models_dirs(extra) for f in sorted(folder.glob("*.toml"))]
+    return graph.check_model_files(files)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.check is not None:
         return _check(args)
+    if args.models:
+        _check_models(SensorGraph.from_dir(args.dir), args.models)
     return _list(args)

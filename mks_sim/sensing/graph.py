@@ -209,6 +209,45 @@ class SensorGraph:
             if name not in state:
                 visit(name)
 
+    def check_model_files(self, paths: Iterable[str | Path]) -> int:
+        """Check that every ``sensor`` named by a ``[[model]]`` or ``[[object]]`` entry of the
+        model files ``paths`` is a logical sensor of this graph (the database is loaded
+        against the sensor graph: a typo must not silently drop a sensor from provenance).
+
+        Returns:
+            How many sensor references were checked.
+
+        Raises:
+            SpecError: ``tasks/models/x.toml: model 'x': field 'sensor': expected one of the
+                logical sensors [...], got 'No_Such_Sensor'`` (or a malformed file).
+        """
+        import tomllib
+
+        checked = 0
+        for path in map(Path, paths):
+            try:
+                doc = tomllib.loads(path.read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+                raise SpecError(f"{path}: cannot read the model file: {exc}") from None
+            for kind in ("model", "object"):
+                entries = doc.get(kind, [])
+                for i, entry in enumerate(entries if isinstance(entries, list) else []):
+                    if not isinstance(entry, Mapping):
+                        continue
+                    name = entry.get("name")
+                    where = Where(path, kind, name if isinstance(name, str) else f"[{i}]")
+                    key = "sensor" if "sensor" in entry else "sensors"
+                    refs = entry.get(key)
+                    if refs is None:
+                        continue
+                    for sensor in refs if isinstance(refs, list) else [refs]:
+                        checked += 1
+                        if not isinstance(sensor, str) or sensor not in self._sensors:
+                            raise where.error(
+                                key, f"one of the logical sensors {sorted(self._sensors)}", sensor
+                            )
+        return checked
+
     # ------------------------------------------------------------------ queries
 
     @property
