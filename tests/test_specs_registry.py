@@ -148,3 +148,15 @@ def test_parse_dataclass():
         assert message in str(info.value), str(info.value)
     with pytest.raises(SpecError, match=r"params.m': expected an integer, got 2.5"):
         parse_dataclass(_P, {"m": 2.5}, w)
+
+
+def test_model_file_errors_name_the_entry_once(tmp_path):
+    from mks_sim.models.database import ModelDatabase
+
+    path = tmp_path / "r.toml"
+    path.write_text('[[model]]\nname = "y"\nkind = "rotinv"\nvertexes = "abc"\n')
+    with pytest.raises(SpecError) as info:
+        ModelDatabase.from_files([path])
+    message = str(info.value)
+    assert message.startswith(f"{path}: model 'y': ") and message.count(str(path)) == 1
+    assert "vertexes" in message

@@ -86,8 +86,9 @@ def _parse_common(entry: Mapping[str, Any], where: str) -> dict[str, Any]:
 
 def _build(make: Any, entry: Mapping[str, Any], where: str) -> Any:
     """Build a Hough model with ``make(args)``; its errors become SpecErrors naming the entry."""
+    args = _parse_common(entry, where)  # its errors already name the entry
     try:
-        model = make(_parse_common(entry, where))
+        model = make(args)
     except MksError as exc:
         raise SpecError(f"{where}: {exc}") from exc
     model.description = str(entry.get("description", ""))
