@@ -36,6 +36,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--address", metavar="auto|HOST:PORT",
         help="--backend ray: join this Ray cluster (default: start a local Ray with --workers CPUs)",
     )  # fmt: skip
+    parser.add_argument(
+        "--record", metavar="DIR",
+        help="step the env (mks_sim/Grasp-v*) with the scripted policy and write the episodes "
+        "as the Minari dataset DIR (named NAME-vN; the 'record' extra)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--max-steps", type=int, default=150, metavar="N",
+        help="--record: env steps per episode before truncation (default 150)",
+    )  # fmt: skip
 
 
 def run_episodes(
@@ -77,11 +86,28 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise MksError(f"--workers: expected >= 1, got {args.workers}")
     check_backend(args.backend, args.address)
+    if args.record is not None:  # checked before any episode runs; Minari loaded only here
+        from mks_sim.record import check_record_dir
+
+        if args.video:
+            raise MksError("--record and --video: expected one of them, got both")
+        if args.max_steps < 1:
+            raise MksError(f"--max-steps: expected >= 1, got {args.max_steps}")
+        check_record_dir(args.record)
     if args.video:  # checked before any episode runs; no folder is created
         output_file(args.video, "--video", (".mp4", ".m4v", ".mov", ".gif"))
     seeds = list(range(args.seed, args.seed + args.episodes))
     faults = tuple(args.fail)
-    if args.video:
+    if args.record is not None:
+        from mks_sim.record import record_episodes
+
+        episodes = record_episodes(
+            args.record, args.object, seeds, faults, max_episode_steps=args.max_steps,
+            backend=args.backend, address=args.address, workers=args.workers,
+        )  # fmt: skip
+        print(f"recorded {len(episodes)} episode(s) as the Minari dataset {args.record}",
+              file=sys.stderr)  # fmt: skip
+    elif args.video:
         frames: list = []
         first = run_episode(args.object, seeds[0], faults, frame_sink=frames.append)
         written = write_video(frames, args.video)
