@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=1000)
     p.add_argument("--env-episodes", type=int, default=0,
-                   help="episodes per object of the scripted policy through mks_sim/Grasp-v0")  # fmt: skip
+                   help="episodes per object of the scripted policy through mks_sim/Grasp-v1")  # fmt: skip
     p.add_argument("--out", type=Path, default=RESULTS / "grasp.md")
     args = p.parse_args(argv)
     n_failed = args.episodes if args.failed_episodes is None else args.failed_episodes
@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _env_episode(job: tuple[str, int]) -> dict:
-    """The scripted grasp through ``mks_sim/Grasp-v0`` (sensor-based localization)."""
+    """The scripted grasp through ``mks_sim/Grasp-v1`` (continuous grip; sensor-based localization)."""
     import gymnasium as gym
 
     import mks_sim  # noqa: F401
@@ -83,7 +83,7 @@ def _env_episode(job: tuple[str, int]) -> dict:
 
     obj, seed = job
     t = time.perf_counter()
-    env = gym.make("mks_sim/Grasp-v0", object=obj, max_episode_steps=150)
+    env = gym.make("mks_sim/Grasp-v1", object=obj, max_episode_steps=150)
     try:
         obs, info = env.reset(seed=seed)
         policy = ScriptedGraspPolicy(env.unwrapped)
