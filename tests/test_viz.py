@@ -199,3 +199,56 @@ def test_localize_cloud_recording_reads_back(tmp_path: Path) -> None:
     local = (posed - T[:3, 3]) @ T[:3, :3]
     outside = np.linalg.norm(np.maximum(np.abs(local) - size / 2, 0), axis=1)
     assert outside.max() < 0.002 and np.abs(np.abs(local).max(axis=1) - size / 2).max() < 0.002
+
+
+class _Device:
+    def __init__(self, reading: Any = None, fail: bool = False) -> None:
+        self.reading, self.fail = reading, fail
+
+    def read(self) -> Any:
+        from mks_sim.errors import DeviceFailure
+
+        if self.fail:
+            raise DeviceFailure("ranger", "lens cap on")
+        return self.reading
+
+
+def test_fallbacks_streams_and_hypotheses_without_a_simulator(tmp_path: Path) -> None:
+    """Fake devices on the test sensor files: the range finder fails, stereo serves; the
+    text log says so, the stream is the stereo rows, hypotheses are posed cube wireframes."""
+    from mks_sim.models.pose import PoseHypothesis
+    from mks_sim.sensing import SensorGraph
+
+    stereo_l, stereo_r = np.array([[1.0, 1.0, 1.0]]), np.array([[1.5, 1.5, 1.5]])
+    devices = {"ranger": _Device(fail=True), "stereo_l": _Device(stereo_l),
+               "stereo_r": _Device(stereo_r), "touch": _Device(np.zeros((1, 3)))}  # fmt: skip
+    graph = SensorGraph.from_dir(Path(__file__).parent / "assets" / "sensors" / "good")
+    T = np.eye(4)
+    T[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]
+    T[:3, 3] = [0.1, 0.2, 0.8]
+    hyps = (PoseHypothesis(T, np.zeros(3), votes=7, score=0.9),)
+    path = tmp_path / "fake.rrd"
+    with open_recorder(parse_rerun_spec(f"save:{path}"), "test") as recorder:
+        snap = recorder.tap_graph(graph).snapshot(recorder.tap_devices(devices))
+        assert snap.get("Range_Points").served_by == "Stereo_Points"
+
+        class Result:  # the fields of WorkstationLocalization the recorder reads
+            object, found, object_to_world, hypotheses, diagnostics = "cube", True, T, hyps, {}
+
+        recorder.log_localization(Result())
+    rec = read_recording(path)
+    texts = [t for v in rec["/log"]["TextLog:text"] for t in v]
+    assert any("Range_Points: primary failed (device 'ranger' failed: lens cap on); served by "
+               "Stereo_Points" in t for t in texts), texts  # fmt: skip
+    rows = np.asarray(last(rec, "/world/sensors/Range_Points", "Points3D:positions"))
+    np.testing.assert_allclose(rows, np.vstack([stereo_l, stereo_r]))
+    strips = np.asarray(last(rec, "/world/localization/cube/hypotheses/0", "LineStrips3D:strips"))
+    assert strips.shape == (12, 2, 3)
+    # every end is a corner of the 5 cm cube at T, every edge 5 cm long (brute force)
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * 0.025
+    corners = corners @ T[:3, :3].T + T[:3, 3]
+    ends = strips.reshape(-1, 3)
+    assert np.linalg.norm(ends[:, None] - corners[None], axis=2).min(axis=1).max() < 1e-6
+    np.testing.assert_allclose(np.linalg.norm(strips[:, 0] - strips[:, 1], axis=1), 0.05, atol=1e-6)
+    label = last(rec, "/world/localization/cube/hypotheses/0", "LineStrips3D:labels")
+    assert "score 0.900 votes 7" in label[0]
