@@ -89,9 +89,10 @@ def read_ply(path: Path) -> dict[str, dict[str, np.ndarray] | list[np.ndarray]]:
             raise _err(path, f"bad PLY header line {lineno}: {line.strip()!r} ({exc})") from exc
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise _err(path, f"PLY format must be ascii or binary_*_endian, got {fmt!r}")
-    if fmt == "ascii":
-        return _read_ascii(path, body, elements)
-    return _read_binary(path, body, elements, "<" if fmt == "binary_little_endian" else ">")
+    with np.errstate(all="ignore"):  # hostile bytes (signalling NaN, overflow) must not warn
+        if fmt == "ascii":
+            return _read_ascii(path, body, elements)
+        return _read_binary(path, body, elements, "<" if fmt == "binary_little_endian" else ">")
 
 
 def _read_ascii(path: Path, body: bytes, elements: list[_Element]) -> dict:

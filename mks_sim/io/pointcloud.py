@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from mks_sim.errors import DataError, NotFound
+from mks_sim.errors import DataError, MksError, NotFound
 from mks_sim.io import _ply
 from mks_sim.io.lzf import LZFError, lzf_compress, lzf_decompress
 
@@ -127,12 +127,15 @@ def read_point_cloud(path: str | Path) -> PointCloud:
     path = Path(path)
     check_input_file(path, "point cloud")
     ext = path.suffix.lower()
-    if ext == ".ply":
-        return _read_ply_cloud(path)
-    if ext == ".pcd":
-        return _read_pcd(path)
-    if ext in (".npy", ".npz"):
-        return _read_numpy(path)
+    # Casts of hostile bytes (signalling NaN, overflow) must not warn: non-finite values are
+    # counted and dropped by _finish.
+    with np.errstate(all="ignore"):
+        if ext == ".ply":
+            return _read_ply_cloud(path)
+        if ext == ".pcd":
+            return _read_pcd(path)
+        if ext in (".npy", ".npz"):
+            return _read_numpy(path)
     raise _err(path, f"unknown point-cloud type {ext!r}; expected .ply, .pcd, .npy or .npz")
 
 
@@ -162,8 +165,12 @@ def _read_numpy(path: Path) -> PointCloud:
                     arr = z[z.files[0]]
                 else:
                     raise _err(path, f"NPZ needs a 'points' array, has {sorted(z.files)}")
-    except (ValueError, OSError, EOFError) as exc:
-        raise _err(path, f"not a readable NumPy file ({exc})") from exc
+    except MksError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - numpy's header parser raises anything
+        # (ValueError, EOFError, SyntaxError, tokenize.TokenError ...) on a corrupt file
+        msg = " ".join(str(exc).split())
+        raise _err(path, f"not a readable NumPy file ({type(exc).__name__}: {msg})") from None
     if not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
         raise _err(path, f"expected a real (integer or float) array, got dtype {arr.dtype}")
     shape = None
@@ -217,6 +224,8 @@ def _read_pcd(path: Path) -> PointCloud:
         raise _err(path, f"bad PCD header ({type(exc).__name__}: {exc})") from exc
     if not (len(sizes) == len(types) == len(counts) == n_f):
         raise _err(path, f"PCD header: FIELDS has {n_f} entries but SIZE/TYPE/COUNT differ")
+    if any(c < 1 for c in counts):
+        raise _err(path, f"PCD header: expected every COUNT >= 1, got {counts}")
     for key, value in (("WIDTH", width), ("HEIGHT", height), ("POINTS", n_points)):
         if value < 0:
             raise _err(path, f"PCD header: expected {key} >= 0, got {value}")
