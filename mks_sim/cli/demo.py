@@ -183,32 +183,28 @@ def _localize(demo: Demo, world: Any, devices: Any, obj: str) -> Any:
 
 def _grasp(demo: Demo, world: Any, devices: Any, obj: str, renderer_hook: Any) -> Any:
     from mks_sim.report import save_grasp
-    from mks_sim.sim import names
-    from mks_sim.tasks.controller import ArmHandController, RobotNames
-    from mks_sim.tasks.episode import (
-        GraspRunner,
-        make_scene_points_fn,
-        make_touch_reader,
-        sensor_localize_fn,
-    )
-    from mks_sim.tasks.evaluate import HoldMonitor
+    from mks_sim.tasks.episode import EpisodeAssembly
     from mks_sim.tasks.spec import task_for_object
 
-    task = task_for_object(obj)
-    ctl = ArmHandController(world.physics, RobotNames.from_model(world.model), make_touch_reader(devices),
-                            on_frame=renderer_hook, frame_every=4)  # fmt: skip
-    monitor = HoldMonitor(world, obj, names.TABLE_TOP_Z)
-    scene_points = make_scene_points_fn(devices)
-    runner = GraspRunner(world, task, ctl, sensor_localize_fn(devices), monitor, scene_points)
-    ok, retries, reason = runner.run()
+    episode = EpisodeAssembly(task_for_object(obj))
+    episode.initialize_episode(world, np.random.default_rng([demo.seed, 3]), devices=devices,
+                               on_frame=renderer_hook, frame_every=4)  # fmt: skip
+    ok, retries, reason = episode.run()
     row = demo.rows.setdefault(obj, ObjectRow(obj))
-    row.grasp = "success" if monitor.success() else f"failed ({reason})"
+    n = len(episode.relocalizations)
+    moved = sum(r.corrected for r in episode.relocalizations)
+    row.grasp = ("success" if episode.success() else f"failed ({reason})") + (
+        f"; re-sensed {n}x, {moved} corrections"
+    )
     row.retries = retries
-    if runner.plan is not None and runner.estimate is not None:
+    if episode.plan is not None and episode.estimate is not None:
         save_grasp(
-            runner.estimate, runner.plan, demo.image(f"{obj}_07_grasp.png"), f"{obj}: chosen grasp"
+            episode.estimate,
+            episode.plan,
+            demo.image(f"{obj}_07_grasp.png"),
+            f"{obj}: chosen grasp",
         )
-    return ctl, ok
+    return episode.controller, ok
 
 
 def _put_aside(ctl: Any) -> None:

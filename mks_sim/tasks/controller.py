@@ -30,6 +30,8 @@ logger = logging.getLogger(__name__)
 
 TouchReader = Callable[[], np.ndarray]
 FrameHook = Callable[[], None]
+# Called after every control period; returning True interrupts the current motion.
+StepHook = Callable[[], bool]
 
 # Jaco arm velocity limits (dm_control jaco_arm.py, from Kinova's datasheet).
 _MAX_VEL = np.deg2rad([36.0, 36.0, 36.0, 48.0, 48.0, 48.0])
@@ -138,6 +140,10 @@ class ArmHandController:
         control_dt: control period, seconds (a multiple of the model timestep).
         on_frame: called once per ``frame_every`` control steps (video capture).
         frame_every: control steps between ``on_frame`` calls.
+
+    Attributes:
+        after_step: called after every control period (the episode's re-sensing); when it
+            returns True, :attr:`interrupted` is set and :meth:`move_to` stops early.
     """
 
     def __init__(
@@ -172,6 +178,8 @@ class ArmHandController:
         self.frame_every = max(1, frame_every)
         self._steps = 0
         self.q_target = self.arm_qpos()
+        self.after_step: StepHook | None = None
+        self.interrupted = False
 
     # -- state ---------------------------------------------------------------------------
     def arm_qpos(self) -> np.ndarray:
@@ -238,6 +246,8 @@ class ArmHandController:
             self._steps += 1
             if self.on_frame is not None and self._steps % self.frame_every == 0:
                 self.on_frame()
+            if self.after_step is not None and self.after_step():
+                self.interrupted = True
 
     @property
     def control_dt(self) -> float:
@@ -250,9 +260,12 @@ class ArmHandController:
         return float(self._d.time)
 
     def settle(self, tol: float = 3e-3, max_steps: int = 150) -> bool:
-        """Step until the arm is within ``tol`` rad of its target; True if it got there."""
+        """Step until the arm is within ``tol`` rad of its target; True if it got there
+        (False as well when :attr:`after_step` interrupts)."""
         for _ in range(max_steps):
             self.step()
+            if self.interrupted:
+                return False
             if np.max(np.abs(self.q_target - self.arm_qpos())) < tol:
                 return True
         return False
@@ -271,8 +284,13 @@ class ArmHandController:
         """Move the pinch site in a straight line to ``pos`` at ``yaw``.
 
         Returns:
-            False when IK fails for a waypoint or the arm does not reach the end.
+            False when IK fails for a waypoint, the arm does not reach the end, or
+            :attr:`after_step` interrupted the motion (then :attr:`interrupted` is True).
+            An interrupt stays set, and every later move returns at once, until the caller
+            clears :attr:`interrupted`.
         """
+        if self.interrupted:
+            return False
         start = self.pinch_pos()
         pos = np.asarray(pos, dtype=float)
         n = max(1, int(math.ceil(np.linalg.norm(pos - start) / spacing_m)))
@@ -287,6 +305,8 @@ class ArmHandController:
                 continue
             self.q_target = q
             self.step(steps_per_wp)
+            if self.interrupted:
+                return False
         reached = self.settle()
         return ok and reached and float(np.linalg.norm(self.pinch_pos() - pos)) < 0.01
 

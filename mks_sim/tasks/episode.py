@@ -1,5 +1,12 @@
-"""One closed-loop grasp episode: sense, localize, plan, approach, close by touch, lift,
-verify, and on failure localize again and retry.
+"""One closed-loop grasp episode: sense, localize, plan, approach while re-sensing, close by
+touch, lift, verify, and on failure localize again and retry.
+
+:class:`EpisodeAssembly` is the episode's one assembly (after dm_control's ``Task``): it binds
+a task to a world and its devices (:meth:`~EpisodeAssembly.initialize_episode`), owns the
+controller, the localization, the re-sensing during the approach (its
+:meth:`~EpisodeAssembly.after_step`, called by the controller every control period) and the
+ground-truth judge (:meth:`~EpisodeAssembly.success`, :meth:`~EpisodeAssembly.get_reward`).
+:func:`run_episode`, the demo (``mks_sim.cli.demo``) and the gymnasium env use it.
 
 :func:`run_episode` is a pure function of its arguments (seed -> result), so a process pool
 or a distributed engine can map it over seeds. Localization is injected
@@ -20,11 +27,11 @@ from typing import Any
 import numpy as np
 
 from mks_sim.errors import DataError, DeviceFailure, MksError, NotFound, SensorFailure
+from mks_sim.models.objects import ObjectModel, load_object
 from mks_sim.sim import names
 from mks_sim.tasks.controller import ArmHandController, RobotNames
 from mks_sim.tasks.evaluate import HOLD_S, HoldMonitor, localization_error
-from mks_sim.tasks.grasp import GraspPlan, rank_grasps
-from mks_sim.tasks.objects import geometry_for
+from mks_sim.tasks.grasp import GraspPlan, synthesize_grasps
 from mks_sim.tasks.spec import TaskSpec, task_for_object
 
 logger = logging.getLogger(__name__)
@@ -35,8 +42,34 @@ FrameSink = Callable[[np.ndarray], None]
 OBJECTS = ("cube", "sphere", "part")
 TOUCH_DEVICES = ("touch_finger_1", "touch_finger_2", "touch_finger_3")
 TOUCH_THRESHOLD_N = 0.05  # summed pad force; the pads' noise floor is ~5 mN
+# Issue 9 section 4: re-sense at least every 0.2 s of simulated time until the fingers close,
+# and correct the target when the estimate moved by more than a few millimetres / degrees
+# (the healthy localization is within ~1 mm, so smaller moves are noise).
+RESENSE_PERIOD_S = 0.2
+CORRECTION_THRESHOLD_M = 0.004
+CORRECTION_THRESHOLD_DEG = 4.0
+MAX_CORRECTIONS = 4
 # Where set-up puts objects a task removes: on the floor, far outside every sensor's view.
 _PARKING = np.array([1.6, 1.6, 0.05])
+
+
+@dataclass(frozen=True)
+class Relocalization:
+    """One re-sensing during the approach.
+
+    Attributes:
+        sim_time_s: simulated time of the snapshot, seconds.
+        found: the localization returned a pose.
+        shift_mm: how far the centre of mass moved from the estimate being tracked, mm.
+        rotation_deg: rotation between them modulo the object's symmetries, degrees.
+        corrected: the target was corrected (the move exceeded the thresholds).
+    """
+
+    sim_time_s: float
+    found: bool
+    shift_mm: float
+    rotation_deg: float
+    corrected: bool
 
 
 @dataclass(frozen=True)
@@ -44,7 +77,7 @@ class EpisodeResult:
     """Outcome of one episode.
 
     Attributes:
-        object: ``cube`` | ``sphere`` | ``part``.
+        object: the object's database name.
         seed: the episode seed.
         success: ground-truth verdict (object >= 8 cm above the table for the whole 1 s hold).
         retries: attempts after the first.
@@ -57,6 +90,8 @@ class EpisodeResult:
         failure: why the last attempt failed ("" on success).
         faults: devices failed for the episode.
         estimate: the last estimate used, 16 floats row-major (or None).
+        attempts_log: what each attempt did, in order.
+        relocalizations: every re-sensing during the approaches, in order.
     """
 
     object: str
@@ -73,6 +108,12 @@ class EpisodeResult:
     faults: tuple[str, ...] = ()
     estimate: tuple[float, ...] | None = None
     attempts_log: tuple[str, ...] = field(default_factory=tuple)
+    relocalizations: tuple[Relocalization, ...] = ()
+
+    @property
+    def corrections(self) -> int:
+        """Re-sensings that moved the target."""
+        return sum(r.corrected for r in self.relocalizations)
 
     def to_json(self) -> dict[str, Any]:
         """The CLI's per-episode JSON record."""
@@ -92,6 +133,11 @@ class EpisodeResult:
             "sim_time_s": round(self.sim_time_s, 3),
             "believed_success": self.believed_success,
             "failure": self.failure,
+            "relocalizations": len(self.relocalizations),
+            "corrections": self.corrections,
+            "max_shift_mm": num(
+                max((r.shift_mm for r in self.relocalizations if r.found), default=float("nan"))
+            ),  # fmt: skip
         }
 
     def as_dict(self) -> dict[str, Any]:
@@ -102,6 +148,8 @@ class EpisodeResult:
 def _as_matrix(result: Any) -> np.ndarray | None:
     """Accept a 4x4 array or an object carrying one (``object_to_world``/``matrix``)."""
     if result is None:
+        return None
+    if getattr(result, "found", True) is False:
         return None
     for attr in ("object_to_world", "matrix", "pose"):
         if hasattr(result, attr) and not isinstance(result, np.ndarray):
@@ -116,17 +164,8 @@ def _as_matrix(result: Any) -> np.ndarray | None:
 
 
 def sensor_localize_fn(devices: Mapping[str, Any], **kwargs: Any) -> LocalizeFn:
-    """The real localization: ``mks_sim.workstation.localize`` over the episode's devices.
-
-    Raises:
-        MksError: the workstation pipeline is not installed.
-    """
-    try:
-        from mks_sim.workstation import localize  # type: ignore[import-not-found]
-    except ImportError as exc:
-        raise MksError(
-            f"the sensor-based localization (mks_sim.workstation.localize) is not available: {exc}"
-        ) from exc
+    """The real localization: ``mks_sim.workstation.localize`` over the episode's devices."""
+    from mks_sim.workstation import localize
 
     def fn(world: Any, object_name: str) -> np.ndarray | None:
         try:
@@ -159,21 +198,26 @@ def make_touch_reader(devices: Mapping[str, Any]) -> Callable[[], np.ndarray]:
 
 
 def build_episode_world(task: TaskSpec, rng: np.random.Generator) -> Any:
-    """The task's world with objects placed from ``rng`` and removed objects parked.
-
-    A placement that finds no free spot is redrawn from the same generator (deterministic).
-    """
+    """The task's world with objects placed from ``rng`` and removed objects parked."""
     from mks_sim.sim.world import build_world
 
     world = build_world(task.scene)
-    randomize_world(world, rng)
-    if task.remove:
-        remove_objects(world, task.remove)
+    set_up_world(world, task, rng)
     return world
 
 
+def set_up_world(world: Any, task: TaskSpec, rng: np.random.Generator) -> None:
+    """Episode set-up of an existing world: seeded placement, the task's removals, time 0."""
+    randomize_world(world, rng)
+    if task.remove:
+        remove_objects(world, task.remove)
+    world.data.time = 0.0
+    world.mark_initial()
+
+
 def randomize_world(world: Any, rng: np.random.Generator, tries: int = 10) -> None:
-    """``world.randomize(rng)``, redrawn when the placement finds no free spot."""
+    """``world.randomize(rng)``, redrawn from the same generator when the placement finds
+    no free spot (deterministic)."""
     for k in range(tries):
         try:
             world.randomize(rng)
@@ -188,15 +232,14 @@ def randomize_world(world: Any, rng: np.random.Generator, tries: int = 10) -> No
 def make_scene_points_fn(devices: Mapping[str, Any]) -> Callable[[], np.ndarray | None]:
     """Sensed 3-D points of the scene (world frame): the ``Range_Points`` logical sensor
     (with its alternates), else the range finder's raw hits; None when nothing delivers."""
+    from mks_sim.sensing import SensorGraph
 
     def read() -> np.ndarray | None:
         try:
-            from mks_sim.sensing import SensorGraph  # type: ignore[attr-defined]
-
             stream = SensorGraph.from_dir().snapshot(devices).get("Range_Points")
             return np.asarray(stream.data, dtype=float)[:, :3]
-        except (MksError, ImportError, AttributeError) as exc:
-            logger.debug("Range_Points unavailable (%s); reading the range finder", exc)
+        except MksError as exc:
+            logger.info("Range_Points unavailable (%s); reading the range finder", exc)
         dev = devices.get("range_finder")
         if dev is None:
             return None
@@ -222,6 +265,11 @@ def obstacle_points(
     return pts[far]
 
 
+def object_radius_m(obj: ObjectModel) -> float:
+    """Distance from the body origin to the farthest vertex of the mesh (metres)."""
+    return float(np.max(np.linalg.norm(obj.mesh.vertices, axis=1)))
+
+
 def remove_objects(world: Any, objects: Iterable[str]) -> None:
     """Set-up: take objects off the table (onto the floor, out of every view)."""
     for k, name in enumerate(objects):
@@ -232,107 +280,270 @@ def remove_objects(world: Any, objects: Iterable[str]) -> None:
     world.mark_initial()
 
 
-class GraspRunner:
-    """The closed loop for one object in an existing world (used by episodes and the demo).
+def _rotation_deg(obj: ObjectModel, a: np.ndarray, b: np.ndarray) -> float:
+    """Smallest rotation between two poses modulo the object's symmetries (0 when the
+    orientation is not observable)."""
+    if not obj.orientation_observable:
+        return 0.0
+    rel = a[:3, :3].T @ b[:3, :3]  # (3, 3)
+    traces = np.einsum("sij,ij->s", obj.rotations, rel)  # trace(S^T rel) for every symmetry
+    return float(np.degrees(np.arccos(np.clip((np.max(traces) - 1) / 2, -1.0, 1.0))))
+
+
+class EpisodeAssembly:
+    """One grasp episode: the task bound to a world, its devices and the robot.
+
+    After dm_control's ``composer.Task``: :meth:`initialize_episode` sets up the per-episode
+    state, :meth:`after_step` runs after every control period (re-sensing during the
+    approach), :meth:`get_reward` / :meth:`success` judge with ground truth (evaluation
+    only; the loop never reads them). :meth:`run` drives the scripted closed loop.
 
     Args:
-        world: the world (``mks_sim.sim.world.World``).
         task: the grasp task.
-        controller: the arm/hand controller bound to ``world``.
-        localize_fn: sensor-based localization.
-        monitor: ground-truth hold monitor (evaluation only; the loop never reads it for
-            decisions).
+        faults: device names failed for the episode (when the assembly builds the devices).
+        localize_fn: localization override (tests of the controller alone); default the
+            sensor-based workstation pipeline over the episode's devices.
+        resense_period_s: re-sense at least this often (simulated seconds) during the
+            approach until the fingers close; None disables re-sensing.
+        models: extra model-database folders (``--models DIR``).
     """
 
     def __init__(
         self,
-        world: Any,
         task: TaskSpec,
-        controller: ArmHandController,
-        localize_fn: LocalizeFn,
-        monitor: HoldMonitor | None = None,
-        scene_points_fn: Callable[[], np.ndarray | None] | None = None,
+        *,
+        faults: Iterable[str] = (),
+        localize_fn: LocalizeFn | None = None,
+        resense_period_s: float | None = RESENSE_PERIOD_S,
+        models: Iterable[str] = (),
     ) -> None:
-        self.world = world
-        self.scene_points_fn = scene_points_fn
         self.task = task
-        self.ctl = controller
-        self.localize_fn = localize_fn
-        self.geometry = geometry_for(task.model)
-        self.monitor = monitor
-        self.home_pos = controller.pinch_pos()
-        self.home_yaw = controller.pinch_yaw()
+        self.faults = tuple(faults)
+        self.obj = load_object(task.object, models=tuple(models))
+        self._localize_override = localize_fn
+        self.resense_period_s = resense_period_s
+        self.world: Any = None
+        self.devices: Any = None
+        self.controller: ArmHandController | None = None
+        self.monitor: HoldMonitor | None = None
+        self.localize_fn: LocalizeFn | None = None
+        self.scene_points_fn: Callable[[], np.ndarray | None] | None = None
+        self._own_devices = False
+        self._rng = np.random.default_rng(0)
+        self.on_localized: Callable[[np.ndarray | None], None] | None = None
+        self._reset_state()
+
+    def _reset_state(self) -> None:
         self.log: list[str] = []
         self.estimate: np.ndarray | None = None
         self.plan: GraspPlan | None = None
-        self.errors: tuple[float, float] = (float("nan"), float("nan"))
-        self.on_localized: Callable[[np.ndarray | None], None] | None = None
+        self.relocalizations: list[Relocalization] = []
+        self.errors: list[tuple[float, float]] = [(float("nan"), float("nan"))]
+        self._tracking = False
+        self._last_sensed = -math.inf
+        self._moved: np.ndarray | None = None
 
+    # -- episode set-up ------------------------------------------------------------------
+    def initialize_episode(
+        self,
+        world: Any,
+        rng: np.random.Generator,
+        *,
+        devices: Any = None,
+        on_frame: Callable[[], None] | None = None,
+        frame_every: int = 3,
+    ) -> None:
+        """Bind to ``world`` (already set up, see :func:`set_up_world`) for one episode.
+
+        Args:
+            world: the world (``mks_sim.sim.world.World``).
+            rng: device noise (when the assembly builds the devices) and grasp sampling.
+            devices: a device set to use (not closed by :meth:`close`); default: all the
+                workstation devices, built here with :attr:`faults`.
+            on_frame: video hook, called every ``frame_every`` control periods.
+            frame_every: control periods between frames.
+        """
+        from mks_sim.devices.factory import make_devices
+        from mks_sim.devices.faults import DeviceFaults
+
+        self.close()
+        self._reset_state()
+        self.world = world
+        if devices is None:
+            fails = {f: DeviceFaults(failed=True) for f in self.faults}
+            devices = make_devices(world.model, world.data, rng, faults=fails)
+            self._own_devices = True
+        self._rng = np.random.default_rng(rng.integers(2**63))
+        self.devices = devices
+        self.localize_fn = self._localize_override or sensor_localize_fn(devices)
+        self.scene_points_fn = make_scene_points_fn(devices)
+        ctl = ArmHandController(world.physics, RobotNames.from_model(world.model),
+                                make_touch_reader(devices), on_frame=on_frame,
+                                frame_every=frame_every)  # fmt: skip
+        ctl.after_step = self.after_step
+        self.controller = ctl
+        self.home_pos = ctl.pinch_pos()
+        self.home_yaw = ctl.pinch_yaw()
+        self.monitor = HoldMonitor(world, self.task.object, names.TABLE_TOP_Z)
+
+    def close(self) -> None:
+        """Release the devices the assembly built."""
+        if self._own_devices and self.devices is not None:
+            self.devices.close()
+        self.devices = None
+        self._own_devices = False
+
+    # -- callbacks -----------------------------------------------------------------------
+    def after_step(self) -> bool:
+        """Every control period: re-sense when due during the approach. Returns True
+        (interrupting the motion) when the estimate moved beyond the thresholds."""
+        ctl = self.controller
+        if not self._tracking or self.resense_period_s is None or ctl is None:
+            return False
+        if ctl.time - self._last_sensed < self.resense_period_s - 1e-9:
+            return False
+        self._last_sensed = ctl.time
+        est = self._localize()
+        if est is None or self.estimate is None:
+            self.relocalizations.append(Relocalization(ctl.time, False, math.nan, math.nan, False))
+            self._note(f"t={ctl.time:.2f} s: re-sensing found nothing")
+            return False
+        com = self.obj.mesh.centroid
+        shift = float(np.linalg.norm((est[:3, :3] - self.estimate[:3, :3]) @ com
+                                     + est[:3, 3] - self.estimate[:3, 3]))  # fmt: skip
+        rot = _rotation_deg(self.obj, self.estimate, est)
+        moved = shift > CORRECTION_THRESHOLD_M or rot > CORRECTION_THRESHOLD_DEG
+        self.relocalizations.append(Relocalization(ctl.time, True, 1000 * shift, rot, moved))
+        if moved:
+            self._note(f"t={ctl.time:.2f} s: object moved {1000 * shift:.1f} mm, "
+                       f"{rot:.1f} deg; correcting the target")  # fmt: skip
+            self._moved = est
+            self._adopt(est)
+        return moved
+
+    def get_reward(self) -> float:
+        """1 on success (ground truth), else 0."""
+        return 1.0 if self.success() else 0.0
+
+    def success(self) -> bool:
+        """Ground-truth verdict of the last hold (evaluation only)."""
+        return self.monitor is not None and self.monitor.success()
+
+    # -- the scripted closed loop --------------------------------------------------------
     def _note(self, msg: str) -> None:
         logger.debug("%s: %s", self.task.object, msg)
         self.log.append(msg)
 
+    def _localize(self) -> np.ndarray | None:
+        assert self.localize_fn is not None
+        est = self.localize_fn(self.world, self.task.object)
+        if self.on_localized is not None:
+            self.on_localized(est)
+        return est
+
+    def _adopt(self, est: np.ndarray | None) -> None:
+        """Track ``est`` from now on (its error against the truth at this moment is recorded
+        for the report: evaluation only, never read by the loop)."""
+        self.estimate = est
+        e = localization_error(self.world, self.task.object, est)
+        self.errors.append((e.position_mm, e.rotation_deg))
+
+    def plans(self, est: np.ndarray) -> list[GraspPlan]:
+        """Executable grasps for the estimate ``est``, best first."""
+        assert self.controller is not None
+        obstacles = None
+        if self.scene_points_fn is not None:
+            obstacles = obstacle_points(self.scene_points_fn(), est,
+                                        object_radius_m(self.obj) + 0.012, names.TABLE_TOP_Z)  # fmt: skip
+        cands = synthesize_grasps(self.obj, est, table_z=names.TABLE_TOP_Z, obstacles=obstacles,
+                                  rng=self._rng, preferred_yaw=self.controller.pinch_yaw())  # fmt: skip
+        return [c.plan(self.task.action) for c in cands]
+
     def _retreat(self) -> None:
-        self.ctl.open(15)
-        up = self.ctl.pinch_pos() + np.array([0.0, 0.0, 0.10])
-        self.ctl.move_to(up, self.ctl.pinch_yaw(), spacing_m=0.02)
-        self.ctl.move_to(self.home_pos, self.home_yaw, spacing_m=0.03)
+        ctl = self.controller
+        assert ctl is not None
+        ctl.open(15)
+        up = ctl.pinch_pos() + np.array([0.0, 0.0, 0.10])
+        ctl.move_to(up, ctl.pinch_yaw(), spacing_m=0.02)
+        ctl.move_to(self.home_pos, self.home_yaw, spacing_m=0.03)
+
+    def _reach(self, plan: GraspPlan) -> tuple[str, GraspPlan]:
+        """Pre-shape, approach and descend to ``plan``, re-sensing on the way and
+        re-planning when the object moved. Returns (outcome, the plan reached) with outcome
+        ``reached`` | ``unreachable`` | ``blocked`` | ``lost``."""
+        ctl = self.controller
+        assert ctl is not None
+        self._tracking = True
+        try:
+            for _ in range(MAX_CORRECTIONS + 1):
+                self.plan = plan
+                ctl.preshape(plan.preshape_q, 10)
+                if ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.03):
+                    if ctl.move_to(np.asarray(plan.grasp_point_world), plan.yaw_rad,
+                                   spacing_m=0.01):  # fmt: skip
+                        return "reached", plan
+                    if self._moved is None:
+                        ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.02)
+                        return "blocked", plan
+                elif self._moved is None:
+                    return "unreachable", plan
+                # The estimate moved: re-plan from it, rising first so that the fingers do
+                # not sweep the object sideways.
+                ctl.interrupted = False
+                replans, self._moved = self.plans(self._moved), None
+                if not replans:
+                    return "lost", plan
+                plan = replans[0]
+                up = ctl.pinch_pos()
+                up[2] = max(up[2], plan.pregrasp_world[2])
+                ctl.move_to(up, ctl.pinch_yaw(), spacing_m=0.02)
+            return "lost", plan
+        finally:
+            self._tracking = False
+            self._moved = None
+            ctl.interrupted = False
 
     def attempt(self) -> tuple[bool, str]:
         """One sense-plan-grasp-lift-verify cycle. Returns (believed success, reason)."""
-        est = self.localize_fn(self.world, self.task.object)
-        self.estimate = est
-        if self.on_localized is not None:
-            self.on_localized(est)
+        ctl = self.controller
+        assert ctl is not None
+        est = self._localize()
+        self._adopt(est)
+        self._last_sensed = ctl.time
         if est is None:
             return False, "not localized"
         act = self.task.action
-        obstacles = None
-        if self.scene_points_fn is not None:
-            g = self.geometry
-            radius = g.radius_m if g.kind == "sphere" else float(np.linalg.norm(g.half_extents_m))
-            obstacles = obstacle_points(
-                self.scene_points_fn(), est, radius + 0.012, names.TABLE_TOP_Z
-            )
-        try:
-            plans = rank_grasps(est, act, self.geometry, preferred_yaw=self.ctl.pinch_yaw(),
-                                table_z=names.TABLE_TOP_Z, obstacles_world=obstacles)  # fmt: skip
-        except MksError as exc:
-            return False, f"no grasp: {exc}"
-        ctl = self.ctl
+        plans = self.plans(est)
+        if not plans:
+            return False, "no grasp: no antipodal pair passes the hand and collision filters"
         reason = "pre-grasp unreachable"
         for plan in plans[:4]:  # the next candidate when the arm cannot reach one
-            self.plan = plan
-            ctl.preshape(plan.preshape_q, 10)
-            if not ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.03):
-                self._note(f"pre-grasp at yaw {plan.yaw_rad:.2f} rad unreachable")
-                continue
-            if ctl.move_to(np.asarray(plan.grasp_point_world), plan.yaw_rad, spacing_m=0.01):
+            outcome, plan = self._reach(plan)
+            if outcome == "reached":
                 break
-            reason = "descent blocked"
-            self._note(f"descent at yaw {plan.yaw_rad:.2f} rad blocked")
-            ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.02)
+            reason = {"unreachable": "pre-grasp unreachable", "blocked": "descent blocked",
+                      "lost": "the object moved and no grasp fits it"}[outcome]  # fmt: skip
+            self._note(f"{reason} (yaw {plan.yaw_rad:.2f} rad)")
+            if outcome == "lost":
+                return False, reason
         else:
             return False, reason
+        assert self.estimate is not None
+        self._note(_describe(plan, self.estimate))
         closed = ctl.close(threshold=TOUCH_THRESHOLD_N, yaw=plan.yaw_rad)
         a, b = closed.sides(TOUCH_THRESHOLD_N)
         if not (a and b):
             return False, f"no two-sided contact (finger 1: {a}, fingers 2/3: {b})"
-        z0 = float(est[2, 3])
+        z0 = float(self.estimate[2, 3])
         ctl.move_to(plan.lifted_world, plan.yaw_rad, spacing_m=0.01)
-        steps = max(1, int(round(HOLD_S / ctl.control_dt)))
-        for _ in range(steps):
+        for _ in range(max(1, int(round(HOLD_S / ctl.control_dt)))):
             ctl.step()
             if self.monitor is not None:
                 self.monitor.sample()
-        t = ctl.touch()
-        a, b = (
-            np.nan_to_num(t, nan=-1.0)[0] > TOUCH_THRESHOLD_N,
-            np.nanmax(np.nan_to_num(t[1:], nan=-1.0)) > TOUCH_THRESHOLD_N,
-        )
-        if not (a and b):
+        t = np.nan_to_num(ctl.touch(), nan=-1.0)
+        if not (t[0] > TOUCH_THRESHOLD_N and max(t[1], t[2]) > TOUCH_THRESHOLD_N):
             return False, "contact lost while lifting"
-        again = self.localize_fn(self.world, self.task.object)
+        again = self._localize()
         if again is not None and again[2, 3] - z0 < 0.5 * act.lift_height_m:
             return False, f"re-sensed object only {1000 * (again[2, 3] - z0):.0f} mm higher"
         return True, "held (touch" + (
@@ -355,6 +566,17 @@ class GraspRunner:
         return False, retries, reason
 
 
+def _describe(plan: GraspPlan, object_to_world: np.ndarray) -> str:
+    """The plan in the object's frame (mm, degrees), for the attempts log."""
+    inv = np.linalg.inv(object_to_world)
+    p = inv[:3, :3] @ np.asarray(plan.grasp_point_world) + inv[:3, 3]
+    axis = inv[:3, :3] @ np.array([math.cos(plan.yaw_rad), math.sin(plan.yaw_rad), 0.0])
+    x, y, z = 1000 * p
+    ax, ay, az = axis
+    return (f"grasp at ({x:.0f}, {y:.0f}, {z:.0f}) mm in the object frame, closing along "
+            f"({ax:.2f}, {ay:.2f}, {az:.2f}), width {1000 * plan.width_m:.0f} mm")  # fmt: skip
+
+
 def run_episode(
     object: str,
     seed: int,
@@ -366,11 +588,13 @@ def run_episode(
     frame_size: tuple[int, int] = (320, 240),
     frame_every: int = 3,
     setup: Callable[[Any], None] | None = None,
+    resense_period_s: float | None = RESENSE_PERIOD_S,
+    on_localized: Callable[[Any, np.ndarray | None], None] | None = None,
 ) -> EpisodeResult:
     """Run one grasp episode from ``seed`` (deterministic).
 
     Args:
-        object: ``cube`` | ``sphere`` | ``part`` (task ``grasp_<object>``).
+        object: the object (task ``grasp_<object>``).
         seed: world randomisation and device noise seed.
         faults: device names failed for the whole episode (e.g. ``range_finder``).
         localize_fn: localization override (tests of the controller alone); default the
@@ -381,68 +605,57 @@ def run_episode(
         frame_every: control steps between frames.
         setup: called with the world after the seeded placement, before anything is sensed
             (e.g. to put the object at a known pose for regression tests).
+        resense_period_s: re-sensing period during the approach (None: never).
+        on_localized: called with (world, estimate) after every localization (tests use it
+            to push the object through the simulator).
 
     Raises:
         NotFound: unknown object / task.
         SpecError: unknown device in ``faults``.
     """
-    from mks_sim.devices.factory import make_devices
-    from mks_sim.devices.faults import DeviceFaults
-
-    if object not in OBJECTS:
+    if object not in OBJECTS and task is None:
         raise NotFound(f"unknown object {object!r}; expected one of {OBJECTS}")
     t_start = time.perf_counter()
     task = task or task_for_object(object)
-    faults = tuple(faults)
     world = build_episode_world(task, np.random.default_rng(seed))
     if setup is not None:
         setup(world)
-    rng = np.random.default_rng([seed, 1])
-    devices = make_devices(
-        world.model, world.data, rng, faults={f: DeviceFaults(failed=True) for f in faults}
-    )
+    episode = EpisodeAssembly(task, faults=faults, localize_fn=localize_fn,
+                              resense_period_s=resense_period_s)  # fmt: skip
     renderer = None
     try:
-        if localize_fn is None:
-            localize_fn = sensor_localize_fn(devices)
         on_frame = None
         if frame_sink is not None:
             renderer, on_frame = _frame_hook(world, frame_sink, frame_size)
-        ctl = ArmHandController(world.physics, RobotNames.from_model(world.model),
-                                make_touch_reader(devices), on_frame=on_frame,
-                                frame_every=frame_every)  # fmt: skip
-        monitor = HoldMonitor(world, task.object, names.TABLE_TOP_Z)
-        runner = GraspRunner(world, task, ctl, localize_fn, monitor, make_scene_points_fn(devices))
-        errors = [(float("nan"), float("nan"))]
-
-        def on_localized(est: np.ndarray | None) -> None:
-            e = localization_error(world, task.object, est)  # evaluation only
-            errors.append((e.position_mm, e.rotation_deg))
-
-        runner.on_localized = on_localized
-        believed, retries, reason = runner.run()
-        success = monitor.success()
-        est = runner.estimate
+        episode.initialize_episode(world, np.random.default_rng([seed, 1]), on_frame=on_frame,
+                                   frame_every=frame_every)  # fmt: skip
+        if on_localized is not None:
+            episode.on_localized = lambda est: on_localized(world, est)
+        believed, retries, reason = episode.run()
+        success = episode.success()
+        est = episode.estimate
+        assert episode.controller is not None and episode.monitor is not None
         return EpisodeResult(
             object=object,
             seed=seed,
             success=success,
             retries=retries,
-            position_error_mm=errors[-1][0],
-            rotation_error_deg=errors[-1][1],
+            position_error_mm=episode.errors[-1][0],
+            rotation_error_deg=episode.errors[-1][1],
             time_s=time.perf_counter() - t_start,
-            sim_time_s=ctl.time,
+            sim_time_s=episode.controller.time,
             believed_success=believed,
-            min_clearance_m=monitor.min_clearance_m,
+            min_clearance_m=episode.monitor.min_clearance_m,
             failure="" if success else reason,
-            faults=faults,
+            faults=episode.faults,
             estimate=None if est is None else tuple(float(v) for v in np.ravel(est)),
-            attempts_log=tuple(runner.log),
+            attempts_log=tuple(episode.log),
+            relocalizations=tuple(episode.relocalizations),
         )
     finally:
         if renderer is not None:
             renderer.close()
-        devices.close()
+        episode.close()
 
 
 def _frame_hook(world: Any, sink: FrameSink, size: tuple[int, int]):

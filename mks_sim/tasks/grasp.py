@@ -1,73 +1,61 @@
-"""Choosing a grasp from a localized model (pure geometry, no simulator).
+"""Grasps synthesised from the object's mesh (pure geometry, no simulator).
 
-The Jaco hand closes finger 1 against fingers 2 and 3 along the x axis of its pinch site; the
-hand approaches from above, so a grasp is a pinch point in the world, a yaw of that closing
-axis about the world's vertical, and the width the fingers should stop at.
+The Jaco hand closes finger 1 against fingers 2 and 3 along the x axis of its pinch site and
+approaches from above, so a grasp is a pinch point in the world, a yaw of that closing axis
+about the world's vertical, and the width the fingers should stop at.
 
-* ``opposite_faces`` (a box): the face pair whose normal is most horizontal; among the yaws
-  that close on it (the normal direction, or the other horizontal pair when the box sits flat)
-  the one nearest the hand's preferred yaw, so the wrist turns least.
-* ``through_centre`` (a sphere): the pinch point is the centre, the yaw the preferred one.
-* ``feature``: a named graspable feature of the model, given in the object frame as a point
-  and a closing axis (``ObjectGeometry.features``).
+:func:`synthesize_grasps` finds them from the model database's mesh (issue 10 section 4):
+
+1. **Antipodal pairs.** Points sampled on the surface (seeded ``rng``) are paired when they
+   lie at the same height, their horizontal distance fits the hand's opening
+   (:data:`MIN_WIDTH_M` .. :data:`MAX_WIDTH_M`), and both inward normals lie inside the
+   friction cone (half angle ``atan(mu)``, ``mu`` the object's sliding friction) around the
+   closing axis.
+2. **Pad support.** A pad centred on each contact (the pinch point closes on the line of the
+   contacts, as the hand-written grasps did) must lie on the surface, and the surface must
+   reach the pad's top edge: a pad that overhangs an edge catches it (the part's 22 mm step
+   has to be pinched low for this reason; measured, docs/grasp.md).
+3. **The approach.** Top-down: the pinch point keeps ``min_clearance_m`` above the table
+   (model hint, default :data:`MIN_CLEARANCE_M`), and the open fingertips, pre-shaped to the
+   width plus :data:`PRESHAPE_MARGIN_M`, must come down clear of the object's own surface and
+   of the sensed points of other objects.
+4. **Ranking.** By the distance from the centre of mass to the line of the pads, plus a
+   penalty for contacts off the closing axis; candidates within :data:`COST_TOLERANCE_M` of
+   the best are ordered by the wrist turn from ``preferred_yaw``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-from mks_sim.errors import DataError, NotFound, SpecError
-from mks_sim.tasks.spec import GraspAction
+from mks_sim.errors import DataError, SpecError
+from mks_sim.geometry.meshes import Mesh, sample_surface
 
+if TYPE_CHECKING:
+    from mks_sim.models.objects import ObjectModel
+    from mks_sim.tasks.spec import GraspAction
 
-@dataclass(frozen=True)
-class GraspFeature:
-    """A graspable feature in the object frame.
-
-    Attributes:
-        point_object: (3,) pinch point, metres, object frame.
-        axis_object: (3,) closing direction (unit), object frame.
-        width_m: the feature's width along the axis, metres.
-    """
-
-    point_object: tuple[float, float, float]
-    axis_object: tuple[float, float, float]
-    width_m: float
-
-
-@dataclass(frozen=True)
-class ObjectGeometry:
-    """What the planner needs to know about a model's shape.
-
-    Attributes:
-        kind: ``box`` | ``sphere`` | ``part``.
-        half_extents_m: (3,) box half sizes (``box``; bounding box for ``part``), metres.
-        radius_m: sphere radius (``sphere``), metres.
-        features: named graspable features (``part``).
-        min_clearance_m: lowest pinch-point height above the table for this object (the
-            fingertips reach ~1 cm below the pinch point when closed), metres.
-    """
-
-    kind: str
-    half_extents_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    radius_m: float = 0.0
-    features: dict[str, GraspFeature] = field(default_factory=dict)
-    min_clearance_m: float = 0.018
-
-    @property
-    def height_m(self) -> float:
-        """Half height used for the clearance check (metres)."""
-        if self.kind == "sphere":
-            return self.radius_m
-        return float(max(self.half_extents_m))
+__all__ = [
+    "FINGERTIPS_XY",
+    "GraspCandidate",
+    "GraspPlan",
+    "finger_collisions",
+    "fingertips_xy",
+    "plan_grasp",
+    "preshape_q",
+    "synthesize_grasps",
+    "wrap_angle",
+]
 
 
 @dataclass(frozen=True)
 class GraspPlan:
-    """A top-down grasp.
+    """A top-down grasp the controller executes.
 
     Attributes:
         grasp_point_world: (3,) where the pinch point closes, metres, world frame.
@@ -102,21 +90,94 @@ class GraspPlan:
         return np.asarray(self.grasp_point_world) + np.array([0.0, 0.0, self.lift_height_m])
 
 
+@dataclass(frozen=True)
+class GraspCandidate:
+    """One synthesised grasp, world frame.
+
+    Attributes:
+        pinch_world: (3,) pinch-site position at closing, metres.
+        yaw_rad: yaw of the closing axis about world z, radians (finger 1 on the +axis side).
+        width_m: horizontal distance between the two contacts, metres.
+        contacts_world: (2, 3) contact of fingers 2/3, then of finger 1, metres.
+        normals_world: (2, 3) outward surface normals at the contacts.
+        antipodal: min over both contacts of cos(inward normal, closing direction); 1 is a
+            perfect antipodal pair, ``cos(atan(mu))`` the edge of the friction cone.
+        com_distance_m: distance from the centre of mass to the line of the contacts.
+        cost: ranking cost (metres; lower is better).
+    """
+
+    pinch_world: tuple[float, float, float]
+    yaw_rad: float
+    width_m: float
+    contacts_world: tuple[tuple[float, float, float], tuple[float, float, float]]
+    normals_world: tuple[tuple[float, float, float], tuple[float, float, float]]
+    antipodal: float
+    com_distance_m: float
+    cost: float
+
+    @property
+    def axis_world(self) -> np.ndarray:
+        """(3,) the closing direction (from fingers 2/3 toward finger 1), unit, horizontal."""
+        return np.array([math.cos(self.yaw_rad), math.sin(self.yaw_rad), 0.0])
+
+    def plan(self, action: GraspAction) -> GraspPlan:
+        """The executable plan with the task's approach and lift heights."""
+        return GraspPlan(
+            grasp_point_world=self.pinch_world,
+            yaw_rad=self.yaw_rad,
+            width_m=self.width_m,
+            approach_height_m=action.approach_height_m,
+            lift_height_m=action.lift_height_m,
+        )
+
+
 def wrap_angle(angle: float) -> float:
     """``angle`` wrapped to [-pi, pi)."""
     return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
+# --- the hand (measured on the pads of mks_sim.sim.robot) -------------------------------------
 # Finger joint angle (rad) -> distance between the pad of finger 1 and the pads of fingers
-# 2 + 3 along the closing axis (m), measured on the pads of mks_sim.sim.robot (same q on all
-# three fingers). Descending with the hand pre-shaped to the object's width plus a margin
-# keeps the fingertips off the table and off neighbouring objects.
+# 2 + 3 along the closing axis (m) (same q on all three fingers). Descending with the hand
+# pre-shaped to the object's width plus a margin keeps the fingertips off the table and off
+# neighbouring objects.
 FINGER_Q = np.array([0.15, 0.3, 0.45, 0.6, 0.75, 0.9, 1.05, 1.2, 1.35])
 PAD_APERTURE_M = np.array([0.159, 0.143, 0.126, 0.107, 0.087, 0.066, 0.045, 0.024, 0.004])
 PRESHAPE_MARGIN_M = 0.035
-# Fingertips across the closing axis in the pinch-site frame (y, m): finger 1, 2, 3.
+# Fingertips across the closing axis in the pinch-site frame (y, m): finger 1, 2, 3 (open).
 FINGERTIPS_Y = np.array([-0.016, -0.044, 0.014])
+# Sensed points of other objects closer than this to an open fingertip block the descent.
 FINGER_CLEARANCE_M = 0.022
+# The pads span 0..15 mm below the pinch site; contact is taken at their centre, and the
+# surface must reach their top edge.
+PAD_CENTRE_BELOW_M = 0.008
+PAD_TOP_ABOVE_CENTRE_M = 0.007
+# The top probe sits this much higher still, so a pad within the probe tolerance of an edge
+# does not pass for one on the face.
+PAD_TOP_MARGIN_M = 0.002
+# Half the pad's width across the closing axis that must lie on the face (pads are ~13 mm).
+PAD_HALF_WIDTH_M = 0.005
+# Where along the closing direction (m, + = further in) a pad may meet the surface: a curved
+# or leaning face is met before or after the line of the contacts.
+PAD_DEPTHS_M = np.array([-0.006, -0.003, 0.0, 0.003, 0.006, 0.009])
+# Open fingertips reach this far below the pinch site (their lowest pad row).
+FINGERTIP_DROP_M = 0.015
+# The object's own surface closer than this to an open fingertip's axis blocks the descent
+# (the fingertip's half thickness plus a little).
+SELF_CLEARANCE_M = 0.008
+# Widths the pads close on: the part's 13 mm boss never gave contact on both pads in our
+# trials (docs/grasp.md); the widest is the open hand minus the pre-shape margin.
+MIN_WIDTH_M = 0.02
+MAX_WIDTH_M = float(PAD_APERTURE_M[0]) - PRESHAPE_MARGIN_M
+# Pinch point above the table (fingertips reach ~15 mm below it); a model's grasp hint
+# ``min_clearance_m`` overrides it.
+MIN_CLEARANCE_M = 0.018
+COST_TOLERANCE_M = 0.004  # candidates this close to the best are ordered by wrist turn
+ANTIPODAL_WEIGHT_M = 0.05  # cost of a contact at the edge of the cone vs a perfect pair
+PAIR_DZ_M = 0.0025  # the two contacts of a pair differ at most this much in height
+SAMPLE_SPACING_M = 0.0012  # the dense surface sample the pad probes query
+PROBE_TOL_M = 0.002
+PROBE_NORMAL_COS = math.cos(math.radians(35.0))
 
 
 def preshape_q(width_m: float, margin_m: float = PRESHAPE_MARGIN_M) -> float:
@@ -135,6 +196,35 @@ def fingertips_xy(aperture_m: float) -> np.ndarray:
 FINGERTIPS_XY = fingertips_xy(float(PAD_APERTURE_M[0]))
 
 
+def _tips_world(pinch: np.ndarray, yaw: np.ndarray, aperture: np.ndarray) -> np.ndarray:
+    """(K, 3, 2) open fingertip xy, world frame, for K pinch points / yaws / apertures."""
+    half = aperture / 2
+    lx = np.stack([half, -half, -half], axis=1)  # (K, 3) along the closing axis
+    ly = np.broadcast_to(FINGERTIPS_Y, lx.shape)  # (K, 3) across it
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    # pinch-site y axis in the world is (sin yaw, -cos yaw) (z down, x at yaw)
+    x = pinch[:, None, 0] + lx * c + ly * s
+    y = pinch[:, None, 1] + lx * s - ly * c
+    return np.stack([x, y], axis=2)
+
+
+def _tip_hits(
+    tips: np.ndarray, pinch_z: np.ndarray, points: np.ndarray, radius: float
+) -> np.ndarray:
+    """(K,) number of ``points`` (M, 3) a top-down descent to pinch heights ``pinch_z`` (K,)
+    would put one of the fingertips ``tips`` (K, 3, 2) on (within ``radius`` in xy)."""
+    K = len(tips)
+    if len(points) == 0 or K == 0:
+        return np.zeros(K, dtype=int)
+    pairs = cKDTree(tips.reshape(-1, 2)).sparse_distance_matrix(
+        cKDTree(points[:, :2]), radius, output_type="ndarray"
+    )
+    cand, pt = pairs["i"] // tips.shape[1], pairs["j"]
+    low = points[pt, 2] > pinch_z[cand] - FINGERTIP_DROP_M
+    key = np.unique(cand[low] * len(points) + pt[low])  # each point once per candidate
+    return np.bincount(key // len(points), minlength=K)
+
+
 def finger_collisions(
     point: np.ndarray, yaw: float, obstacles_world: np.ndarray | None, aperture_m: float = 0.16
 ) -> int:
@@ -142,29 +232,11 @@ def finger_collisions(
     the hand pre-shaped to ``aperture_m``."""
     if obstacles_world is None or len(obstacles_world) == 0:
         return 0
-    c, s = math.cos(yaw), math.sin(yaw)
-    tips = fingertips_xy(aperture_m) @ np.array([[c, s], [-s, c]]) + point[:2]  # (3, 2) world xy
+    p = np.asarray(point, dtype=float).reshape(1, 3)
+    tips = _tips_world(p, np.array([yaw]), np.array([aperture_m]))
     obs = np.asarray(obstacles_world, dtype=float)
-    obs = obs[obs[:, 2] < point[2] + 0.10]
-    d = np.linalg.norm(obs[None, :, :2] - tips[:, None, :], axis=2)  # (3, N)
-    return int(np.count_nonzero(d.min(axis=0) < FINGER_CLEARANCE_M))
-
-
-def _ranked(
-    candidates: list[tuple[float, float]],
-    point: np.ndarray,
-    preferred_yaw: float,
-    obstacles_world: np.ndarray | None,
-) -> list[tuple[float, float]]:
-    """Candidates by fewest finger collisions, then least wrist turn (yaw near preferred)."""
-
-    def key(c: tuple[float, float]) -> tuple[int, float]:
-        turn = abs(wrap_angle(c[0] - preferred_yaw))
-        return finger_collisions(point, c[0], obstacles_world, c[1] + PRESHAPE_MARGIN_M), turn
-
-    return [
-        (preferred_yaw + wrap_angle(y - preferred_yaw), w) for y, w in sorted(candidates, key=key)
-    ]
+    obs = obs[obs[:, 2] < p[0, 2] + 0.10]
+    return int(_tip_hits(tips, p[:, 2] + FINGERTIP_DROP_M, obs, FINGER_CLEARANCE_M)[0])
 
 
 def _check_pose(object_to_world: np.ndarray) -> np.ndarray:
@@ -174,88 +246,246 @@ def _check_pose(object_to_world: np.ndarray) -> np.ndarray:
     return T
 
 
-def plan_grasp(
-    object_to_world: np.ndarray,
-    action: GraspAction,
-    geometry: ObjectGeometry,
-    preferred_yaw: float = 0.0,
-    table_z: float = 0.0,
-    min_clearance_m: float | None = None,
-    obstacles_world: np.ndarray | None = None,
-) -> GraspPlan:
-    """The best grasp of :func:`rank_grasps` (same arguments)."""
-    return rank_grasps(object_to_world, action, geometry, preferred_yaw, table_z,
-                       min_clearance_m, obstacles_world)[0]  # fmt: skip
+def _dense_surface(mesh: Mesh) -> tuple[np.ndarray, np.ndarray, cKDTree]:
+    """Dense surface sample of ``mesh`` (body frame) and its k-d tree, cached on the mesh."""
+    key = "grasp_dense_surface"
+    if key not in mesh._cache:
+        n = int(np.clip(mesh.area / SAMPLE_SPACING_M**2, 500, 40000))
+        pts, nrm = sample_surface(mesh, n, rng=np.random.default_rng(0))
+        mesh._cache[key] = (pts, nrm, cKDTree(pts))
+    return mesh._cache[key]  # type: ignore[no-any-return]
 
 
-def rank_grasps(
+def _supported(probes_body: np.ndarray, normals_body: np.ndarray, mesh: Mesh) -> np.ndarray:
+    """(P,) True where a probe lies on the surface with a normal like ``normals_body``."""
+    pts, nrm, tree = _dense_surface(mesh)
+    _, idx = tree.query(probes_body, k=4, distance_upper_bound=PROBE_TOL_M)
+    valid = idx < len(pts)  # missing neighbours are indicated with len(pts)
+    same = np.einsum("pkj,pj->pk", nrm[np.minimum(idx, len(pts) - 1)], normals_body)
+    return np.any(valid & (same >= PROBE_NORMAL_COS), axis=1)
+
+
+def _hint(obj: Any, key: str, default: float) -> float:
+    hints = getattr(obj, "grasp", None) or {}
+    value = hints.get(key, default)
+    if not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise SpecError(
+            f"object {obj.name!r}: grasp hint {key!r}: expected a number, got {value!r}"
+        )
+    return float(value)
+
+
+def synthesize_grasps(
+    obj: ObjectModel,
     object_to_world: np.ndarray,
-    action: GraspAction,
-    geometry: ObjectGeometry,
+    *,
+    table_z: float,
+    obstacles: np.ndarray | None = None,
+    rng: np.random.Generator | None = None,
     preferred_yaw: float = 0.0,
-    table_z: float = 0.0,
-    min_clearance_m: float | None = None,
-    obstacles_world: np.ndarray | None = None,
-) -> list[GraspPlan]:
-    """Top-down grasps for an object at ``object_to_world``, best first.
+    n_samples: int = 300,
+    max_candidates: int = 24,
+) -> list[GraspCandidate]:
+    """Top-down antipodal grasps of ``obj`` at ``object_to_world``, best first.
 
     Args:
+        obj: the model-database object (its ``mesh`` in metres, body frame; ``friction[0]``
+            the sliding friction; hint ``grasp.min_clearance_m``).
         object_to_world: (4, 4) estimated pose of the object (never ground truth).
-        action: the task's grasp parameters.
-        geometry: the model's shape.
-        preferred_yaw: yaw (rad) the hand would rather keep (its current one).
         table_z: height of the table top, metres.
-        min_clearance_m: the pinch point stays at least this high above the table so the
-            fingertips do not dig into it (default ``geometry.min_clearance_m``).
-        obstacles_world: (N, 3) sensed points of everything but the object and the table
-            (world frame, metres), or None. Candidate yaws whose open fingertips would come
-            down on such points are avoided; among the free ones the hand turns least.
+        obstacles: (N, 3) sensed points of everything but the object and the table (world
+            frame, metres), or None. Candidates whose open fingertips would come down within
+            :data:`FINGER_CLEARANCE_M` of such a point are removed.
+        rng: surface sampling (default seeded 0: deterministic).
+        preferred_yaw: yaw (rad) the hand would rather keep (its current one); yaws are
+            returned unwrapped to the nearest turn of it.
+        n_samples: surface points drawn for pairing.
+        max_candidates: at most this many candidates (distinct contact pairs, each in both
+            closing directions).
+
+    Returns:
+        Candidates, best first; empty when no pair passes the filters.
 
     Raises:
         DataError: the pose is not a finite 4x4 matrix.
-        NotFound: a ``feature`` grasp names a feature the geometry does not have.
-        SpecError: the grasp type does not fit the geometry.
+        SpecError: a malformed grasp hint.
     """
     T = _check_pose(object_to_world)
-    R, centre = T[:3, :3], T[:3, 3]
-    gt = action.grasp_type
-    candidates: list[tuple[float, float]] = []  # (yaw, width)
-    if gt == "opposite_faces":
-        if geometry.kind not in ("box", "part"):
-            raise SpecError(f"grasp_type 'opposite_faces' needs a box model, got {geometry.kind!r}")
-        tilt = np.abs(R[2, :])  # |z component| of each face normal pair
-        for i in np.flatnonzero(tilt <= tilt.min() + 0.05):
-            yaw_i = math.atan2(R[1, i], R[0, i])
-            candidates += [
-                (yaw_i + k * math.pi, 2.0 * geometry.half_extents_m[i]) for k in range(2)
-            ]
-        point = centre + np.array([0.0, 0.0, -action.grasp_depth_m])
-    elif gt == "through_centre":
-        candidates = [(preferred_yaw + k * math.pi / 6, 2.0 * geometry.radius_m) for k in range(12)]
-        point = centre + np.array([0.0, 0.0, -action.grasp_depth_m])
-    elif gt == "feature":
-        feat = geometry.features.get(action.feature)
-        if feat is None:
-            raise NotFound(
-                f"grasp feature {action.feature!r} not in the model; known: {sorted(geometry.features)}"
-            )
-        point = (
-            R @ np.asarray(feat.point_object) + centre - np.array([0.0, 0.0, action.grasp_depth_m])
+    rng = np.random.default_rng(0) if rng is None else rng
+    R, t = T[:3, :3], T[:3, 3]
+    mesh = obj.mesh
+    mu = float(obj.friction[0])
+    cos_cone = math.cos(math.atan(mu))
+    clearance = _hint(obj, "min_clearance_m", MIN_CLEARANCE_M)
+
+    dense, dense_n, _ = _dense_surface(mesh)
+    p_world = dense @ R.T + t  # (n, 3)
+    n_world = dense_n @ R.T
+    # A contact's inward normal must fit in a cone around a horizontal closing axis, and
+    # its height keep the pinch point above the table's clearance.
+    keep = np.flatnonzero(
+        (np.abs(n_world[:, 2]) <= math.sin(math.atan(mu)))
+        & (p_world[:, 2] + PAD_CENTRE_BELOW_M >= table_z + clearance)
+    )
+    keep = rng.choice(keep, size=min(n_samples, len(keep)), replace=False)
+    p_world, n_world = p_world[keep], n_world[keep]
+    # Cheap pre-check per point (the full pad check runs per candidate below): the surface
+    # reaches the pad's top edge above the contact.
+    top = _reaches_top(mesh, R, t, p_world, n_world)
+    p_world, n_world = p_world[top], n_world[top]
+
+    # Pairs (i, j): i = fingers 2/3 side, j = finger 1 side, closing axis d from i to j.
+    D = p_world[None, :, :] - p_world[:, None, :]  # (m, m, 3)
+    width = np.hypot(D[..., 0], D[..., 1])
+    d = D[..., :2] / np.maximum(width, 1e-12)[..., None]  # (m, m, 2) horizontal unit
+    a_i = -np.einsum("ijk,ik->ij", d, n_world[:, :2])  # inward normal at i along +d
+    a_j = np.einsum("ijk,jk->ij", d, n_world[:, :2])  # inward normal at j along -d
+    ok = (
+        (np.abs(D[..., 2]) <= PAIR_DZ_M)
+        & (width >= MIN_WIDTH_M)
+        & (width <= MAX_WIDTH_M)
+        & (a_i >= cos_cone)
+        & (a_j >= cos_cone)
+    )
+    ii, jj = np.nonzero(ok)
+    if len(ii) == 0:
+        return []
+    antipodal = np.minimum(a_i[ii, jj], a_j[ii, jj])
+    mid = 0.5 * (p_world[ii] + p_world[jj])  # pad-centre line midpoint
+    axis = np.column_stack([d[ii, jj], np.zeros(len(ii))])
+    com = R @ mesh.centroid + t
+    rel = com - mid
+    com_dist = np.linalg.norm(rel - np.sum(rel * axis, axis=1)[:, None] * axis, axis=1)
+    cost = com_dist + ANTIPODAL_WEIGHT_M * (1.0 - antipodal) / (1.0 - cos_cone + 1e-12)
+    # Both closing directions of each pair: finger 1 on j (yaw of d) or on i (yaw + pi).
+    K = len(ii)
+    yaw = np.arctan2(axis[:, 1], axis[:, 0])
+    yaw = np.concatenate([yaw, yaw + math.pi])  # (2K,)
+    src = np.concatenate([np.arange(K), np.arange(K)])
+    f1 = np.concatenate([jj, ii])  # finger 1's contact
+    f23 = np.concatenate([ii, jj])  # fingers 2/3's contact
+    pinch = mid[src] + np.array([0.0, 0.0, PAD_CENTRE_BELOW_M])
+    aperture = width[ii, jj][src] + PRESHAPE_MARGIN_M
+    own = dense[:: max(1, len(dense) // 2000)] @ R.T + t  # (<= 4000, 3)
+    own = own[own[:, 2] > table_z + 0.002]
+    obs = np.zeros((0, 3))
+    if obstacles is not None and len(obstacles):
+        obs = np.asarray(obstacles, dtype=float).reshape(-1, 3)
+        obs = obs[np.all(np.isfinite(obs), axis=1)]
+    # The costly checks run on distinct candidates, cheapest first, a batch at a time.
+    order = _distinct(np.arange(2 * K), pinch, yaw, cost[src], 2 * K)
+    kept: list[int] = []
+    batch = 6 * max_candidates
+    for start in range(0, len(order), batch):
+        b = order[start : start + batch]
+        ok = _pads_supported(mesh, R, t, p_world, n_world, f1[b], f23[b], yaw[b])
+        tips = _tips_world(pinch[b], yaw[b], aperture[b])
+        ok &= _tip_hits(tips, pinch[b, 2], own, SELF_CLEARANCE_M) == 0
+        ok &= _tip_hits(tips, pinch[b, 2], obs, FINGER_CLEARANCE_M) == 0
+        kept.extend(int(k) for k in b[ok])
+        if len(kept) >= max_candidates:
+            break
+    sel = kept[:max_candidates]
+    out = [
+        GraspCandidate(
+            pinch_world=tuple(float(v) for v in pinch[k]),  # type: ignore[arg-type]
+            yaw_rad=float(preferred_yaw + wrap_angle(yaw[k] - preferred_yaw)),
+            width_m=float(width[f23[k], f1[k]]),
+            contacts_world=(tuple(map(float, p_world[f23[k]])), tuple(map(float, p_world[f1[k]]))),  # type: ignore[arg-type]
+            normals_world=(tuple(map(float, n_world[f23[k]])), tuple(map(float, n_world[f1[k]]))),  # type: ignore[arg-type]
+            antipodal=float(antipodal[src[k]]),
+            com_distance_m=float(com_dist[src[k]]),
+            cost=float(cost[src[k]]),
         )
-        axis = R @ np.asarray(feat.axis_object)
-        yaw_f = math.atan2(axis[1], axis[0])
-        candidates = [(yaw_f + k * math.pi, feat.width_m) for k in range(2)]
-    else:  # pragma: no cover - the spec loader rejects other types
-        raise SpecError(f"unknown grasp_type {gt!r}")
-    clearance = geometry.min_clearance_m if min_clearance_m is None else min_clearance_m
-    point[2] = max(point[2], table_z + clearance)
-    return [
-        GraspPlan(
-            grasp_point_world=(float(point[0]), float(point[1]), float(point[2])),
-            yaw_rad=float(yaw),
-            width_m=float(width),
-            approach_height_m=action.approach_height_m,
-            lift_height_m=action.lift_height_m,
-        )
-        for yaw, width in _ranked(candidates, point, preferred_yaw, obstacles_world)
+        for k in sel
     ]
+    return _by_wrist_turn(out, preferred_yaw)
+
+
+def _pads_supported(
+    mesh: Mesh,
+    R: np.ndarray,
+    t: np.ndarray,
+    p_world: np.ndarray,
+    n_world: np.ndarray,
+    f1: np.ndarray,
+    f23: np.ndarray,
+    yaw: np.ndarray,
+) -> np.ndarray:
+    """(K,) both contacts carry a pad: the contact, the pad's sides across the closing axis
+    and the same three points at its top edge lie on the surface, each where the pad is or
+    shifted along the closing direction by one of :data:`PAD_DEPTHS_M` (a curved or leaning
+    face)."""
+    across = np.column_stack([np.sin(yaw), -np.cos(yaw), np.zeros(len(yaw))])  # pinch-site y
+    axis = np.column_stack([np.cos(yaw), np.sin(yaw), np.zeros(len(yaw))])  # pinch-site x
+    up = np.array([0.0, 0.0, PAD_TOP_ABOVE_CENTRE_M + PAD_TOP_MARGIN_M])
+    depths = PAD_DEPTHS_M  # (D,) the pad meets the surface closing more or less far
+
+    def on_surface(contact: np.ndarray, inward: np.ndarray) -> np.ndarray:
+        centre = p_world[contact]  # (K, 3)
+        side = PAD_HALF_WIDTH_M * across
+        corners = [centre, centre - side, centre + side]
+        probes = np.stack(corners + [c + up for c in corners])  # (6, K, 3)
+        probes = probes[None] + depths[:, None, None, None] * inward  # (D, 6, K, 3)
+        normals = np.broadcast_to(n_world[contact], probes.shape)
+        hit = _supported((probes.reshape(-1, 3) - t) @ R, normals.reshape(-1, 3) @ R, mesh)
+        return np.all(np.any(hit.reshape(probes.shape[:3]), axis=0), axis=0)
+
+    return on_surface(f1, -axis) & on_surface(f23, axis)
+
+
+def _reaches_top(
+    mesh: Mesh, R: np.ndarray, t: np.ndarray, p_world: np.ndarray, n_world: np.ndarray
+) -> np.ndarray:
+    """(n,) the surface is found above each contact at the pad's top edge (or up to
+    :data:`PAD_DEPTHS_M` along the inward normal)."""
+    up = np.array([0.0, 0.0, PAD_TOP_ABOVE_CENTRE_M + PAD_TOP_MARGIN_M])
+    probes = p_world[None] + up - PAD_DEPTHS_M[:, None, None] * n_world[None]  # (D, n, 3)
+    normals = np.broadcast_to(n_world, probes.shape)
+    hit = _supported((probes.reshape(-1, 3) - t) @ R, normals.reshape(-1, 3) @ R, mesh)
+    return np.any(hit.reshape(probes.shape[:2]), axis=0)
+
+
+def _distinct(
+    idx: np.ndarray, pinch: np.ndarray, yaw: np.ndarray, cost: np.ndarray, limit: int
+) -> np.ndarray:
+    """The cheapest of ``idx`` per cell of 6 mm (pinch point) x 15 degrees (yaw), at most
+    ``limit``, cheapest first (a vectorised non-maximum suppression)."""
+    idx = idx[np.argsort(cost[idx], kind="stable")]
+    cell = np.floor(pinch[idx] / 0.006).astype(np.int64)  # (k, 3)
+    cell -= cell.min(axis=0)
+    span = cell.max(axis=0) + 1
+    turn = np.floor((yaw[idx] % (2 * math.pi)) / math.radians(15.0)).astype(np.int64)  # 0..23
+    key = ((cell[:, 0] * span[1] + cell[:, 1]) * span[2] + cell[:, 2]) * 24 + turn
+    _, first = np.unique(key, return_index=True)
+    return idx[np.sort(first)][:limit]
+
+
+def _by_wrist_turn(cands: list[GraspCandidate], preferred_yaw: float) -> list[GraspCandidate]:
+    """Near-best candidates (within :data:`COST_TOLERANCE_M`) first, by least wrist turn."""
+    if not cands:
+        return cands
+    best = min(c.cost for c in cands)
+
+    def key(c: GraspCandidate) -> tuple[bool, float, float]:
+        near = c.cost <= best + COST_TOLERANCE_M
+        turn = abs(c.yaw_rad - preferred_yaw)
+        return (not near, turn if near else c.cost, c.cost)
+
+    return sorted(cands, key=key)
+
+
+def plan_grasp(
+    obj: ObjectModel,
+    object_to_world: np.ndarray,
+    action: GraspAction,
+    *,
+    table_z: float,
+    preferred_yaw: float = 0.0,
+    obstacles_world: np.ndarray | None = None,
+    rng: np.random.Generator | None = None,
+) -> GraspPlan | None:
+    """The best synthesised grasp as an executable plan, or None when there is none."""
+    cands = synthesize_grasps(obj, object_to_world, table_z=table_z, obstacles=obstacles_world,
+                              rng=rng, preferred_yaw=preferred_yaw)  # fmt: skip
+    return cands[0].plan(action) if cands else None

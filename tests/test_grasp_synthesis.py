@@ -1,0 +1,191 @@
+"""Grasp synthesis from the mesh (issue 10 section 4), checked by brute-force geometry.
+
+Every candidate's contacts are located on the mesh independently with trimesh (closest point
+over all triangles); the normals found there must oppose each other within the friction cone
+around the closing axis, the width must fit the hand, and the pinch point must keep its
+clearance above the table.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh  # only to build a cylinder mesh the project does not ship
+from scipy.spatial.transform import Rotation
+
+from mks_sim.errors import DataError, SpecError
+from mks_sim.geometry.meshes import Mesh, box_mesh, industrial_part_mesh, uv_sphere
+from mks_sim.models.objects import ObjectModel
+from mks_sim.tasks import grasp
+from mks_sim.tasks.grasp import fingertips_xy, synthesize_grasps
+
+TABLE_Z = 0.75
+
+
+def _object(mesh: Mesh, mu: float = 1.0, **grasp_hints: float) -> ObjectModel:
+    return ObjectModel(name="thing", mesh=mesh, symmetries=np.eye(4)[None],
+                       friction=(mu, 0.01, 0.0002), grasp=grasp_hints)  # fmt: skip
+
+
+def _cylinder() -> Mesh:
+    c = trimesh.creation.cylinder(radius=0.022, height=0.07, sections=64)
+    return Mesh(np.asarray(c.vertices), np.asarray(c.faces))
+
+
+def _resting(mesh: Mesh, R: np.ndarray, xy: tuple[float, float]) -> np.ndarray:
+    """A pose with rotation R whose lowest vertex touches the table."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    z = -(mesh.vertices @ R.T)[:, 2].min()
+    T[:3, 3] = (xy[0], xy[1], TABLE_Z + z)
+    return T
+
+
+MESHES = {
+    "box": lambda: box_mesh((0.05, 0.04, 0.06)),
+    "sphere": lambda: uv_sphere(0.03),
+    "cylinder": _cylinder,
+    "part": industrial_part_mesh,
+}
+
+
+def _faces_containing(tri: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Brute force over all triangles (F, 3, 3): outward unit normals of those containing
+    point p (on their plane within 1e-7 m, barycentric coordinates >= -1e-7)."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    n = np.cross(b - a, c - a)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    on_plane = np.abs(np.einsum("fi,fi->f", p - a, n)) < 1e-7
+    v0, v1, v2 = b - a, c - a, p - a
+    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+    den = d00 * d11 - d01 * d01
+    v = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    inside = (v >= -1e-7) & (w >= -1e-7) & (v + w <= 1 + 1e-7)
+    return n[on_plane & inside]
+
+
+def _check(obj: ObjectModel, T: np.ndarray, cands: list[grasp.GraspCandidate]) -> None:
+    mu = obj.friction[0]
+    tri = obj.mesh.transformed(T).triangles
+    clearance = obj.grasp.get("min_clearance_m", grasp.MIN_CLEARANCE_M)
+    half_angle = math.atan(mu)
+    for c in cands:
+        contacts = np.asarray(c.contacts_world)  # fingers 2/3, finger 1
+        axis = c.axis_world
+        assert abs(axis[2]) < 1e-9  # top-down hand: horizontal closing axis
+        # On the surface, and every face there has its inward normal within the friction
+        # cone of the closing force (+axis at fingers 2/3, -axis at finger 1).
+        for k, direction in ((0, axis), (1, -axis)):
+            normals = _faces_containing(tri, contacts[k])
+            assert len(normals), f"contact {contacts[k]} is not on the surface"
+            angles = np.arccos(np.clip(-normals @ direction, -1, 1))
+            assert np.all(angles <= half_angle + 1e-6), np.degrees(angles)
+        # The line of the contacts is the closing axis; the width fits the opening.
+        d = contacts[1] - contacts[0]
+        assert np.linalg.norm(d[:2]) == pytest.approx(c.width_m, abs=1e-9)
+        assert abs(d[2]) <= grasp.PAIR_DZ_M
+        assert np.cross(np.append(d[:2], 0.0), axis)[2] == pytest.approx(0.0, abs=1e-9)
+        assert d[:2] @ axis[:2] > 0  # finger 1 on the +axis side
+        assert grasp.MIN_WIDTH_M <= c.width_m <= float(grasp.PAD_APERTURE_M[0]) - 0.035
+        # Above the table.
+        assert c.pinch_world[2] >= TABLE_Z + clearance - 1e-9
+        assert np.all(contacts[:, 2] > TABLE_Z)
+
+
+@pytest.mark.parametrize("name", sorted(MESHES))
+@pytest.mark.parametrize("seed", range(3))
+def test_candidates_are_antipodal_fit_the_hand_and_clear_the_table(name: str, seed: int) -> None:
+    mesh = MESHES[name]()
+    obj = _object(mesh, mu=0.8 if seed else 1.0)
+    # Any yaw; tilted up to 25 degrees (leaning), except the part, which rests flat.
+    tilt = 0.0 if name == "part" else 12.5 * seed
+    R = Rotation.from_euler("zx", [70 * seed, tilt], degrees=True).as_matrix()
+    T = _resting(mesh, R, (0.1, -0.05))
+    cands = synthesize_grasps(obj, T, table_z=TABLE_Z, rng=np.random.default_rng(seed))
+    assert cands, f"no grasp of the {name}"
+    _check(obj, T, cands)
+
+
+def test_a_narrow_friction_cone_admits_only_opposed_faces() -> None:
+    """A box tilted 20 degrees about x: with mu = 0.2 (cone 11 degrees) only the x faces
+    (vertical) oppose each other; with mu = 1 the tilted y faces qualify as well."""
+    obj_slippery = _object(box_mesh((0.05, 0.05, 0.05)), mu=0.2)
+    R = Rotation.from_euler("x", 20, degrees=True).as_matrix()
+    T = _resting(obj_slippery.mesh, R, (0.0, 0.0))
+    slippery = synthesize_grasps(obj_slippery, T, table_z=TABLE_Z)
+    assert slippery
+    for c in slippery:  # the closing axis within the 11-degree cone of the x faces' normals
+        assert abs(c.axis_world[0]) >= math.cos(math.atan(0.2)) - 1e-9
+    grippy = synthesize_grasps(
+        _object(obj_slippery.mesh, mu=1.0), T, table_z=TABLE_Z, max_candidates=500
+    )
+    assert any(abs(c.axis_world[1]) > 0.9 for c in grippy)
+
+
+def _tip_distance_to(c: grasp.GraspCandidate, wall: np.ndarray) -> float:
+    """Brute force: the smallest xy distance from an open fingertip to a wall point."""
+    yaw = c.yaw_rad
+    x = np.array([math.cos(yaw), math.sin(yaw)])
+    y = np.array([math.sin(yaw), -math.cos(yaw)])  # the pinch site's y (z points down)
+    tips = np.asarray(c.pinch_world[:2]) + fingertips_xy(
+        c.width_m + grasp.PRESHAPE_MARGIN_M
+    ) @ np.stack([x, y])
+    return float(np.min(np.linalg.norm(wall[None, :, :2] - tips[:, None, :], axis=2)))
+
+
+def test_a_wall_of_sensed_points_removes_the_grasps_whose_fingers_hit_it() -> None:
+    obj = _object(box_mesh((0.05, 0.05, 0.05)))
+    T = _resting(obj.mesh, np.eye(3), (0.0, 0.0))
+    gy, gz = np.meshgrid(np.linspace(-0.1, 0.1, 41), np.linspace(TABLE_Z, TABLE_Z + 0.1, 21))
+    wall = np.column_stack([np.full(gy.size, 0.06), gy.ravel(), gz.ravel()])  # x = 6 cm
+    free = synthesize_grasps(obj, T, table_z=TABLE_Z)
+    hitting = [c for c in free if _tip_distance_to(c, wall) < grasp.FINGER_CLEARANCE_M]
+    assert hitting  # closing along x puts a fingertip 17.5 mm from the wall
+    walled = synthesize_grasps(obj, T, table_z=TABLE_Z, obstacles=wall)
+    assert walled
+    assert all(_tip_distance_to(c, wall) >= grasp.FINGER_CLEARANCE_M for c in walled)
+    assert all(abs(c.axis_world[1]) > abs(c.axis_world[0]) for c in walled)  # across y only
+
+
+def test_the_part_is_pinched_low_on_its_step() -> None:
+    """The pads (top edge 7 mm above their centre) must not overhang the 22 mm step: every
+    candidate's pinch point is below the step's top, and the plate (8 mm) is never gripped."""
+    from mks_sim.models.objects import load_object
+
+    part = load_object("part")
+    for seed in range(3):
+        R = Rotation.from_euler("z", 50 * seed, degrees=True).as_matrix()
+        T = _resting(part.mesh, R, (0.0, 0.1))
+        cands = synthesize_grasps(part, T, table_z=TABLE_Z, rng=np.random.default_rng(seed))
+        assert cands
+        for c in cands:
+            contact_z = np.asarray(c.contacts_world)[:, 2] - TABLE_Z
+            assert np.all(contact_z + grasp.PAD_TOP_ABOVE_CENTRE_M <= 0.022 + 1e-3)
+            assert c.pinch_world[2] - TABLE_Z >= part.grasp["min_clearance_m"] - 1e-9
+
+
+def test_deterministic_for_a_seed_and_ranked_by_cost_then_wrist_turn() -> None:
+    obj = _object(uv_sphere(0.03))
+    T = _resting(obj.mesh, np.eye(3), (0.1, 0.0))
+    a = synthesize_grasps(obj, T, table_z=TABLE_Z, rng=np.random.default_rng(5))
+    b = synthesize_grasps(obj, T, table_z=TABLE_Z, rng=np.random.default_rng(5))
+    assert a == b
+    best = min(c.cost for c in a)
+    near = [c for c in a if c.cost <= best + grasp.COST_TOLERANCE_M]
+    assert a[: len(near)] == sorted(near, key=lambda c: abs(c.yaw_rad))
+    c = synthesize_grasps(obj, T, table_z=TABLE_Z, preferred_yaw=2.0)
+    assert all(abs(x.yaw_rad - 2.0) <= math.pi for x in c)
+
+
+def test_too_wide_or_too_thin_gives_no_grasp_and_errors() -> None:
+    wide = _object(box_mesh((0.2, 0.2, 0.05)))
+    assert synthesize_grasps(wide, _resting(wide.mesh, np.eye(3), (0, 0)), table_z=TABLE_Z) == []
+    with pytest.raises(DataError, match="expected a finite 4x4 matrix"):
+        synthesize_grasps(wide, np.full((4, 4), np.nan), table_z=TABLE_Z)
+    bad = _object(box_mesh((0.05, 0.05, 0.05)), min_clearance_m="low")  # type: ignore[arg-type]
+    with pytest.raises(SpecError, match="grasp hint 'min_clearance_m': expected a number"):
+        synthesize_grasps(bad, _resting(bad.mesh, np.eye(3), (0, 0)), table_z=TABLE_Z)
