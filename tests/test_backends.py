@@ -89,6 +89,15 @@ def test_bad_backend_arguments() -> None:
         run_episodes([], workers=0)
 
 
+def test_unreachable_ray_address_fails_fast() -> None:
+    pytest.importorskip("ray")
+    # Runs before the module's Ray fixture starts a session (file order).
+    with pytest.raises(MksError, match=r"--address: no Ray cluster reachable at '127.0.0.1:1'"):
+        run_episodes([], backend="ray", address="127.0.0.1:1")
+    with pytest.raises(MksError, match=r"--address: expected auto or HOST:PORT, got 'head'"):
+        run_episodes([], backend="ray", address="head")
+
+
 def test_ray_missing_names_the_extra(monkeypatch: pytest.MonkeyPatch, capsys) -> None:
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` raises ImportError
     with pytest.raises(MksError, match=r"Ray is not installed; run pip install 'mks-sim\[ray\]'"):

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import socket
 import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -132,10 +133,11 @@ def run_episodes(
         raise MksError(f"max_retries: expected >= 0, got {max_retries}")
     from tqdm import tqdm
 
+    started = _ray_connect(address, workers) if backend == "ray" else False
     bar = tqdm(total=len(jobs), desc=desc, unit="ep", file=sys.stderr, disable=not progress)
     try:
         if backend == "ray":
-            return _run_ray(jobs, fn, address, workers, max_retries, bar.update)
+            return _run_ray(jobs, fn, max_retries, bar.update)
         if workers == 1:
             out = []
             for job in jobs:
@@ -145,6 +147,10 @@ def run_episodes(
         return _run_pool(jobs, fn, workers, max_retries, bar.update)
     finally:
         bar.close()
+        if started:
+            import ray
+
+            ray.shutdown()
 
 
 def _run_pool(
@@ -192,50 +198,62 @@ def _run_pool(
     return [results[i] for i in range(len(jobs))]
 
 
+def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """Fail fast on a HOST:PORT nobody listens at (Ray itself waits minutes for its GCS)."""
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit():
+        raise MksError(f"--address: expected auto or HOST:PORT, got {address!r}")
+    try:
+        socket.create_connection((host.removeprefix("ray://"), int(port)), timeout_s).close()
+    except OSError as exc:
+        raise MksError(f"--address: no Ray cluster reachable at {address!r} ({exc})") from exc
+
+
+def _ray_connect(address: str | None, workers: int) -> bool:
+    """Initialise Ray unless it already is; True when this call started the session."""
+    import ray
+
+    if ray.is_initialized():
+        return False
+    if address is None:
+        ray.init(num_cpus=workers, include_dashboard=False, logging_level=logging.WARNING)
+        return True
+    if address != "auto":
+        _check_reachable(address)
+    try:
+        ray.init(address=address, logging_level=logging.WARNING)
+    except ConnectionError as exc:
+        raise MksError(f"--address: no Ray cluster reachable at {address!r} ({exc})") from exc
+    return True
+
+
 def _run_ray(
     jobs: Sequence[Any],
     fn: EpisodeFn,
-    address: str | None,
-    workers: int,
     max_retries: int,
     tick: Callable[[], Any],
 ) -> list[dict]:
     import ray
     from ray.exceptions import RayTaskError, WorkerCrashedError
 
-    started = not ray.is_initialized()
-    if started:
-        if address is None:
-            ray.init(num_cpus=workers, include_dashboard=False, logging_level=logging.WARNING)
-        else:
+    task = ray.remote(num_cpus=1, max_retries=max_retries)(fn)
+    refs = {task.remote(job): i for i, job in enumerate(jobs)}
+    results: dict[int, dict] = {}
+    pending = list(refs)
+    while pending:
+        done, pending = ray.wait(pending, num_returns=1)
+        for ref in done:
             try:
-                ray.init(address=address, logging_level=logging.WARNING)
-            except ConnectionError as exc:
+                results[refs[ref]] = ray.get(ref)
+            except WorkerCrashedError as exc:
                 raise MksError(
-                    f"--address: no Ray cluster reachable at {address!r} ({exc})"
+                    f"ray: job {refs[ref]} ({jobs[refs[ref]]!r}): its worker died "
+                    f"{max_retries + 1} times (expected <= max_retries={max_retries})"
                 ) from exc
-    try:
-        task = ray.remote(num_cpus=1, max_retries=max_retries)(fn)
-        refs = {task.remote(job): i for i, job in enumerate(jobs)}
-        results: dict[int, dict] = {}
-        pending = list(refs)
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            for ref in done:
-                try:
-                    results[refs[ref]] = ray.get(ref)
-                except WorkerCrashedError as exc:
-                    raise MksError(
-                        f"ray: job {refs[ref]} ({jobs[refs[ref]]!r}): its worker died "
-                        f"{max_retries + 1} times (expected <= max_retries={max_retries})"
-                    ) from exc
-                except RayTaskError as exc:
-                    # The episode's own error, as the local backend raises it (an MksError
-                    # keeps its exit code).
-                    cause = exc.cause
-                    raise (cause if isinstance(cause, BaseException) else exc) from None
-                tick()
-        return [results[i] for i in range(len(jobs))]
-    finally:
-        if started:
-            ray.shutdown()
+            except RayTaskError as exc:
+                # The episode's own error, as the local backend raises it (an MksError
+                # keeps its exit code).
+                cause = exc.cause
+                raise (cause if isinstance(cause, BaseException) else exc) from None
+            tick()
+    return [results[i] for i in range(len(jobs))]
