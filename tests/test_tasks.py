@@ -18,7 +18,7 @@ model = "cube_5cm"
 matcher = "rotinv"
 [task.action]
 kind = "grasp"
-grasp_type = "opposite_faces"
+grasp_type = "antipodal"
 lift_height_m = 0.1
 retries = 1
 """
@@ -41,7 +41,7 @@ def test_shipped_tasks_load() -> None:
         assert task.action.grasp_type in GRASP_TYPES
         assert task.action.retries >= 1
     assert get_task("grasp_cube").remove == ("sphere",)
-    assert get_task("grasp_part").action.feature == "step"
+    assert all(t.action.grasp_type == "antipodal" for t in tasks.values())
 
 
 def test_good_file_defaults(tmp_path: Path) -> None:
@@ -57,13 +57,14 @@ def test_good_file_defaults(tmp_path: Path) -> None:
     [
         ('scene = "scene2"\n', "", "'scene'"),
         ('matcher = "rotinv"', 'matcher = "magic"', "'matcher'"),
-        ('grasp_type = "opposite_faces"', 'grasp_type = "suction"', "'action.grasp_type'"),
+        ('grasp_type = "antipodal"', 'grasp_type = "suction"', "'action.grasp_type'"),
         ("lift_height_m = 0.1", 'lift_height_m = "high"', "'action.lift_height_m'"),
         ("lift_height_m = 0.1", "lift_height_m = 3.0", "'action.lift_height_m'"),
         ("retries = 1", "retries = -1", "'action.retries'"),
         ("retries = 1", "retries = 1\ncolour = 3", "'action.colour'"),
         ('object = "cube"', 'object = "cube"\nspeed = 2', "'speed'"),
-        ('grasp_type = "opposite_faces"', 'grasp_type = "feature"', "'action.feature'"),
+        # hand-written grasp geometry is gone (issue 10): its keys are unknown now
+        ('grasp_type = "antipodal"', 'grasp_type = "antipodal"\nfeature = "step"', "'action.feature'"),
     ],
 )
 def test_bad_field_names_file_entry_and_field(

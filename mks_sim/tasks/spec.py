@@ -14,7 +14,7 @@ A task file (``tasks/*.toml``) holds one or more ``[[task]]`` entries::
 
     [task.action]             # what the task does with the localization
     kind = "grasp"
-    grasp_type = "opposite_faces"   # opposite_faces | through_centre | feature
+    grasp_type = "antipodal"  # grasps synthesised from the model's mesh (tasks/grasp.py)
     approach_height_m = 0.12  # pre-grasp height of the pinch point above the grasp point
     lift_height_m = 0.10
     retries = 2               # re-localize and try again at most this many times
@@ -33,7 +33,7 @@ from typing import Any
 from mks_sim.errors import NotFound, SpecError
 from mks_sim.resources import data_dir
 
-GRASP_TYPES = ("opposite_faces", "through_centre", "feature")
+GRASP_TYPES = ("antipodal",)
 ACTION_KINDS = ("grasp",)
 MATCHERS = ("rotinv", "hough3d", "feature", "freeform", "icp")
 
@@ -43,24 +43,18 @@ class GraspAction:
     """The grasp parameters of a task.
 
     Attributes:
-        grasp_type: ``opposite_faces`` (a box: fingers on the two faces whose normal is most
-            horizontal), ``through_centre`` (a sphere), ``feature`` (a named graspable feature
-            of the model, e.g. the part's boss).
-        feature: name of the graspable feature (``feature`` grasps only, else "").
+        grasp_type: ``antipodal``: top-down antipodal grasps synthesised from the object's
+            mesh in the model database (:func:`mks_sim.tasks.grasp.synthesize_grasps`).
         approach_height_m: height of the pre-grasp pinch point above the grasp point, metres.
         lift_height_m: how far the object is lifted, metres.
         retries: how many times a failed grasp is re-localized and retried (0 = one attempt).
-        grasp_depth_m: how far below the object's top the pinch point goes (0 = object centre
-            for boxes and spheres), metres.
     """
 
     kind: str = "grasp"
-    grasp_type: str = "opposite_faces"
-    feature: str = ""
+    grasp_type: str = "antipodal"
     approach_height_m: float = 0.12
     lift_height_m: float = 0.10
     retries: int = 2
-    grasp_depth_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -94,11 +88,9 @@ _TASK_KEYS = {"name", "description", "scene", "object", "model", "matcher", "act
 _ACTION_FIELDS: dict[str, type] = {
     "kind": str,
     "grasp_type": str,
-    "feature": str,
     "approach_height_m": float,
     "lift_height_m": float,
     "retries": int,
-    "grasp_depth_m": float,
 }
 
 
@@ -148,12 +140,9 @@ def _parse_action(raw: Any, path: Path | str, entry: str) -> GraspAction:
             "action.grasp_type",
             f"expected one of {GRASP_TYPES}, got {action.grasp_type!r}",
         )
-    if action.grasp_type == "feature" and not action.feature:
-        raise _err(path, entry, "action.feature", "required when grasp_type = 'feature'")
     for key, low, high in (
         ("approach_height_m", 0.02, 0.5),
         ("lift_height_m", 0.0, 0.5),
-        ("grasp_depth_m", -0.1, 0.1),
     ):
         value = getattr(action, key)
         if not low <= value <= high:
