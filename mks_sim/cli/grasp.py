@@ -144,4 +144,5 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"success rate: {doc['success_rate']:.2f} ({len(episodes)} episodes, object {args.object})"
         )
-    return 0
+    # The exit-code contract: 0 every episode succeeded, 1 some failed (the JSON says which).
+    return 0 if all(e["success"] for e in episodes) else 1
