@@ -67,6 +67,8 @@ def test_infos_have_one_structure_and_say_what_served(recorded: Path) -> None:
             assert np.all(infos[f"failed.{device}"] == (device == "range_finder"))
         for sensor in meta["mks_sim_logical_sensors"]:
             assert f"provenance.{sensor}" in infos
+        # The range finder failed: its alternate served the points (a recorded fallback).
+        assert set(infos["provenance.Range_Points"]) == {"Stereo_Points"}
 
 
 @pytest.mark.slow

@@ -19,6 +19,8 @@ Reward and ``info`` are evaluation (ground truth): ``info["success"]`` is the is
 criterion (object >= 8 cm above the table held for 1 s); the reward is that success (1.0)
 minus a small distance-to-object shaping term. ``info`` after ``reset`` also has
 ``reset_timing_s`` (``localization``, ``other``, ``total``, wall-clock seconds).
+``info["provenance"]`` (not ground truth) maps each logical sensor of the last sensing to the
+way that served it (``{"Range_Points": "Stereo_Points"}`` with the range finder failed).
 """
 
 from __future__ import annotations
@@ -320,10 +322,16 @@ class GraspEnv(gym.Env):
         return 1.0 if command >= 0 else -1.0
 
     def _sense(self) -> None:
-        fn = self._localize_override or sensor_localize_fn(self._devices)
+        self._provenance: dict[str, str] = {}
+        fn = self._localize_override or sensor_localize_fn(
+            self._devices, on_result=self._keep_provenance
+        )
         self._estimate = fn(self.world, self.object)
         # Evaluation only: the estimate's error at the time it was sensed.
         self._loc_error = localization_error(self.world, self.object, self._estimate)
+
+    def _keep_provenance(self, result: Any) -> None:
+        self._provenance = dict(getattr(result, "provenance", {}))
 
     def _clearance(self) -> float:
         z = lowest_point_z(self.world.model, self.world.data, self.object)
@@ -411,6 +419,8 @@ class GraspEnv(gym.Env):
                 "rotation_deg": err.rotation_deg,
             },
             "clearance_m": self._clearance() if clearance is None else clearance,
+            # Logical sensor -> the way that served it at the last sensing (fallbacks visible).
+            "provenance": dict(self._provenance),
         }
 
 

@@ -163,16 +163,28 @@ def _as_matrix(result: Any) -> np.ndarray | None:
     return T
 
 
-def sensor_localize_fn(devices: Mapping[str, Any], **kwargs: Any) -> LocalizeFn:
-    """The real localization: ``mks_sim.workstation.localize`` over the episode's devices."""
+def sensor_localize_fn(
+    devices: Mapping[str, Any],
+    *,
+    on_result: Callable[[Any], None] | None = None,
+    **kwargs: Any,
+) -> LocalizeFn:
+    """The real localization: ``mks_sim.workstation.localize`` over the episode's devices.
+
+    ``on_result``, when given, receives each full localization result (its ``provenance``
+    names the way that served each logical sensor); it is not called when localization fails.
+    """
     from mks_sim.workstation import localize
 
     def fn(world: Any, object_name: str) -> np.ndarray | None:
         try:
-            return _as_matrix(localize(world, object_name, devices, **kwargs))
+            result = localize(world, object_name, devices, **kwargs)
         except (NotFound, SensorFailure, DeviceFailure) as exc:
             logger.info("localization of %s failed: %s", object_name, exc)
             return None
+        if on_result is not None:
+            on_result(result)
+        return _as_matrix(result)
 
     return fn
 
