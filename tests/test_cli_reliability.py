@@ -253,3 +253,18 @@ def test_same_seed_gives_bit_identical_localization() -> None:
     a, b = once(5), once(5)
     assert a.tobytes() == b.tobytes()  # bit-identical, not merely close
     assert not np.array_equal(once(6), a)  # and the seed matters
+
+
+def test_degenerate_mesh_gives_one_line_messages(capsys, tmp_path) -> None:
+    mesh = tmp_path / "flat.ply"
+    mesh.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+        "0 0 0\n0 0 0\n0 0 0\n0 0 0\n3 0 1 2\n3 0 2 3\n"
+    )
+    rc, out, err = _run(
+        ["localize-cloud", "--model", str(mesh), "--scene", str(_plane(tmp_path))], capsys
+    )
+    assert rc == 2 and "Traceback" not in err and "model 'flat'" in err
+    lines = err.strip().splitlines()
+    assert all(line.startswith("mks-sim") for line in lines), lines  # no source lines
