@@ -1,4 +1,4 @@
-"""The gymnasium environment ``mks_sim/Grasp-v0`` (Gymnasium-Robotics-style API tests).
+"""The gymnasium environments ``mks_sim/Grasp-v0`` / ``-v1`` (Gymnasium-Robotics-style API tests).
 
 These tests check the env API, not localization: they pass a ground-truth ``localize_fn``
 (the env's default is the sensor-based pipeline) so that they stay cheap.
@@ -7,6 +7,9 @@ These tests check the env API, not localization: they pass a ground-truth ``loca
 from __future__ import annotations
 
 import pickle
+import subprocess
+import sys
+import textwrap
 
 import gymnasium as gym
 import numpy as np
@@ -14,7 +17,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import mks_sim  # noqa: F401  (registers the envs)
-from mks_sim.envs.grasp_env import GraspEnv
+from mks_sim.envs.grasp_env import GraspEnv, GraspEnvV1
 
 
 def _truth_localize(world, name):  # env API alone: ground truth stands in for sensing
@@ -23,9 +26,9 @@ def _truth_localize(world, name):  # env API alone: ground truth stands in for s
     return truth.object_to_world(world, name)
 
 
-def _make(**kw):
+def _make(env_id: str = "mks_sim/Grasp-v0", **kw):
     kw.setdefault("localize_fn", _truth_localize)
-    return gym.make("mks_sim/Grasp-v0", **kw)
+    return gym.make(env_id, **kw)
 
 
 def _same(a, b) -> bool:
@@ -34,19 +37,22 @@ def _same(a, b) -> bool:
     return bool(np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True))
 
 
-def test_registered_both_ways() -> None:
-    assert "mks_sim/Grasp-v0" in gym.registry
-    env = gym.make("mks_sim:mks_sim/Grasp-v0", object="sphere", localize_fn=_truth_localize)
+@pytest.mark.parametrize(("version", "cls"), [("v0", GraspEnv), ("v1", GraspEnvV1)])
+def test_registered_both_ways(version: str, cls: type) -> None:
+    assert f"mks_sim/Grasp-{version}" in gym.registry
+    env = gym.make(f"mks_sim:mks_sim/Grasp-{version}", object="sphere",
+                   localize_fn=_truth_localize)  # fmt: skip
     try:
-        assert isinstance(env.unwrapped, GraspEnv)
+        assert type(env.unwrapped) is cls
         assert env.unwrapped.object == "sphere"
+        assert env.unwrapped.continuous_grip is (version == "v1")
     finally:
         env.close()
 
 
 @pytest.mark.slow
 def test_check_env_passes() -> None:
-    env = GraspEnv(object="cube", localize_fn=_truth_localize, render_mode="rgb_array",
+    env = GraspEnvV1(object="cube", localize_fn=_truth_localize, render_mode="rgb_array",
                    observe_image=True, observe_depth=True, observe_points=True, n_points=64,
                    image_size=(32, 24), render_size=(64, 48))  # fmt: skip
     try:
@@ -120,11 +126,12 @@ def test_render_pickle_and_faults() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("vector", ["sync", "async"])
 def test_vector_envs(vector: str) -> None:
-    fns = [lambda: gym.make("mks_sim/Grasp-v0", object="cube", localize_fn=_truth_localize)] * 2
+    kw = {"object": "cube", "localize_fn": _truth_localize}
     if vector == "sync":
-        venv = gym.vector.SyncVectorEnv(fns)
+        venv = gym.vector.SyncVectorEnv([lambda: gym.make("mks_sim/Grasp-v0", **kw)] * 2)
     else:  # spawn: forking a process that holds EGL contexts is unsafe
-        venv = gym.vector.AsyncVectorEnv(fns, context="spawn")
+        venv = gym.make_vec("mks_sim/Grasp-v1", num_envs=2, vectorization_mode="async",
+                            vector_kwargs={"context": "spawn"}, **kw)  # fmt: skip
     try:
         obs, _ = venv.reset(seed=[1, 2])
         assert obs["pinch_pos"].shape == (2, 3)
@@ -152,6 +159,84 @@ def test_scripted_policy_through_the_env_lifts() -> None:
         env.close()
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize(("obj", "seed"), [("cube", 1001), ("cube", 1009), ("part", 1002)])
+def test_scripted_policy_continuous_grip_lifts(obj: str, seed: int) -> None:
+    """v1: pre-shaped, gentle close then squeeze. The cube seeds failed on v0 (the open hand
+    landed a fingertip on the cube and the binary grip closed at full speed)."""
+    from mks_sim.envs.scripted import ScriptedGraspPolicy
+
+    env = _make("mks_sim/Grasp-v1", object=obj, max_episode_steps=150)
+    try:
+        obs, _ = env.reset(seed=seed)
+        policy = ScriptedGraspPolicy(env.unwrapped)
+        grips = []
+        for _ in range(150):
+            action = policy(obs)
+            grips.append(float(action[4]))
+            obs, _, terminated, truncated, info = env.step(action)
+            if terminated or truncated:
+                break
+        assert info["success"], policy.phase
+        assert any(-1.0 < g < 1.0 and g != 0.0 for g in grips)  # the grip was continuous
+    finally:
+        env.close()
+
+
+def test_nan_action_rejected_and_env_stays_usable() -> None:
+    env = _make("mks_sim/Grasp-v1", object="cube")
+    try:
+        env.reset(seed=0)
+        d = env.unwrapped.world.data
+        before = (d.qpos.copy(), d.time)
+        for bad in ([np.nan, 0, 0, 0, 0], [0, 0, np.inf, 0, 0], [0, 0, 0, 0, -np.inf]):
+            with pytest.raises(ValueError, match=r"action: expected finite numbers"):
+                env.step(np.array(bad, np.float32))
+        assert np.array_equal(d.qpos, before[0]) and d.time == before[1]  # nothing happened
+        with pytest.raises(ValueError, match=r"action: expected 5 numbers"):
+            env.step(np.zeros(4, np.float32))
+        obs, reward, *_ = env.step(np.array([0.5, 0, -0.5, 0, 0.3], np.float32))
+        assert np.isfinite(reward) and np.all(np.isfinite(obs["arm_qpos"]))
+        assert d.time > before[1]
+    finally:
+        env.close()
+
+
+def test_reset_reports_timing() -> None:
+    env = _make("mks_sim/Grasp-v1", object="sphere")
+    try:
+        _, info = env.reset(seed=1)
+        t = info["reset_timing_s"]
+        assert set(t) == {"localization", "other", "total"}
+        assert t["localization"] >= 0 and t["other"] >= 0
+        assert t["localization"] + t["other"] == pytest.approx(t["total"])
+        assert env.unwrapped.dt == pytest.approx(0.1)
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+def test_no_egl_tracebacks_at_exit_when_not_closed() -> None:
+    code = textwrap.dedent(
+        """
+        import gymnasium as gym, numpy as np, mks_sim
+        from mks_sim.sim import truth
+        env = gym.make("mks_sim/Grasp-v1", object="cube", render_mode="rgb_array",
+                       observe_image=True, observe_depth=True, image_size=(32, 24),
+                       localize_fn=lambda w, n: truth.object_to_world(w, n))
+        env.reset(seed=0)
+        env.step(np.zeros(5, np.float32))
+        assert env.render().shape == (120, 160, 3)
+        print("ok")
+        """  # and no env.close()
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"
+    assert "Traceback" not in out.stderr and "EGLError" not in out.stderr, out.stderr
+
+
 def test_bad_arguments() -> None:
     from mks_sim.errors import MksError, NotFound
 
@@ -159,3 +244,10 @@ def test_bad_arguments() -> None:
         GraspEnv(object="pyramid")
     with pytest.raises(MksError, match="render_mode: expected None or 'rgb_array'"):
         GraspEnv(object="cube", render_mode="human")
+    for size in ((0, 0), (-5, 84)):
+        with pytest.raises(MksError, match=r"image_size: expected \(width, height\) > 0"):
+            GraspEnvV1(object="cube", observe_image=True, image_size=size)
+    with pytest.raises(MksError, match=r"image_size: expected \(width, height\) of two ints"):
+        GraspEnvV1(object="cube", image_size=(84,))
+    with pytest.raises(MksError, match=r"render_size: expected \(width, height\) > 0"):
+        GraspEnvV1(object="cube", render_size=(0, 10))

@@ -1,8 +1,20 @@
-"""The scripted grasp as a policy over ``mks_sim/Grasp-v0`` observations.
+"""The scripted grasp as a policy over ``mks_sim/Grasp-v0`` / ``-v1`` observations.
 
 It reads only observations (the localization estimate, the pinch point, the touch pads, and
 range points when the env observes them) and emits the env's actions, phase by phase:
 approach above the grasp point, descend, close until both sides touch, lift, hold.
+
+The env integrates the actions into a pinch-point target that the velocity-limited arm
+follows with a lag; a policy that commanded from the *observed* pinch point would integrate
+that lag and overshoot (the yaw swung past the plan by more than a radian). So the policy
+keeps the target it has commanded (its own actions, from the first observed pinch point)
+and steers that to the goal; the observations decide when a phase is done.
+
+On ``Grasp-v1`` (continuous grip) it does what the closed loop does: it pre-shapes the
+fingers to the grasp width plus a margin while approaching (``GraspPlan.preshape_q``; a fully
+open hand lands its fingertips on neighbouring objects), closes gently until both sides
+touch, then squeezes (``ArmHandController.close``). On v0 the hand is either fully open or
+closing at full speed.
 """
 
 from __future__ import annotations
@@ -12,35 +24,60 @@ from typing import Any
 import numpy as np
 
 from mks_sim.envs.grasp_env import MAX_STEP_M, MAX_YAW_RAD
+from mks_sim.models.objects import load_object
 from mks_sim.sim import names
-from mks_sim.tasks.episode import TOUCH_THRESHOLD_N, obstacle_points
+from mks_sim.tasks.episode import TOUCH_THRESHOLD_N, object_radius_m, obstacle_points
 from mks_sim.tasks.grasp import GraspPlan, plan_grasp, wrap_angle
-from mks_sim.tasks.objects import geometry_for
 
 
 class ScriptedGraspPolicy:
     """Callable ``policy(obs) -> action`` for a :class:`~mks_sim.envs.grasp_env.GraspEnv`.
 
     Args:
-        env: the (unwrapped) env, for its task and object geometry only.
-        gain: fraction of the remaining distance commanded per step.
+        env: the (unwrapped) env, for its task only (the object's mesh comes from the model
+            database).
+        gain: fraction of the remaining distance (commanded target to goal) per step.
+        close_grip: finger velocity while closing before both sides touch (v1 only).
+        squeeze_grip: finger velocity once both sides touch and while lifting (v1 only).
     """
 
-    def __init__(self, env: Any, gain: float = 0.7) -> None:
+    def __init__(
+        self, env: Any, gain: float = 0.7, close_grip: float = 0.6, squeeze_grip: float = 1.0
+    ) -> None:
         self.task = env.task
-        self.geometry = geometry_for(self.task.model)
+        self.obj = load_object(self.task.object)
         self.gain = gain
+        self.continuous = continuous = bool(getattr(env, "continuous_grip", False))
+        self.close_grip = close_grip if continuous else 1.0
+        self.squeeze_grip = squeeze_grip if continuous else 1.0
         self.phase = "approach"
         self.plan: GraspPlan | None = None
         self._count = 0
+        self._target: np.ndarray | None = None  # (3,) commanded pinch point, world, metres
+        self._yaw = 0.0  # commanded yaw, radians
 
     def _goal_action(
         self, obs: dict[str, Any], goal: np.ndarray, yaw: float, grip: float
     ) -> np.ndarray:
-        delta = (goal - obs["pinch_pos"]) * self.gain / MAX_STEP_M
-        dyaw = wrap_angle(yaw - float(obs["pinch_yaw"][0])) * self.gain / MAX_YAW_RAD
-        a = np.clip(np.array([*delta, dyaw, grip]), -1.0, 1.0)
-        return a.astype(np.float32)
+        if self._target is None:
+            self._target = np.asarray(obs["pinch_pos"], dtype=float).copy()
+            self._yaw = float(obs["pinch_yaw"][0])
+        delta = np.clip((goal - self._target) * self.gain / MAX_STEP_M, -1.0, 1.0)
+        dyaw = float(np.clip(wrap_angle(yaw - self._yaw) * self.gain / MAX_YAW_RAD, -1.0, 1.0))
+        # The env's own update (grasp_env.GraspEnv.step), so the model stays in step with it.
+        self._target = self._target + delta * MAX_STEP_M
+        self._target[2] = max(self._target[2], names.TABLE_TOP_Z + 0.01)
+        self._yaw = wrap_angle(self._yaw + dyaw * MAX_YAW_RAD)
+        return np.array([*delta, dyaw, grip], dtype=np.float32)
+
+    def _preshape_grip(self, obs: dict[str, Any], q: float) -> float:
+        """Grip holding the fingers at angle ``q`` (rad): v1 steers the finger velocity there
+        (a step is 0.1 s at up to 5 rad/s, so ``grip = dq / 0.5`` would close the gap in
+        one step; 0.8 of that does not overshoot); v0 can only open fully."""
+        if not self.continuous:
+            return -1.0
+        dq = q - float(np.mean(obs["finger_qpos"]))
+        return float(np.clip(0.8 * dq / 0.5, -1.0, 1.0))
 
     def __call__(self, obs: dict[str, Any]) -> np.ndarray:
         if self.plan is None:
@@ -50,24 +87,26 @@ class ScriptedGraspPolicy:
             obstacles = None
             if "points" in obs:
                 pts = np.asarray(obs["points"], dtype=float)[: int(obs["n_points"][0])]
-                g = self.geometry
-                r = g.radius_m if g.kind == "sphere" else float(np.linalg.norm(g.half_extents_m))
-                obstacles = obstacle_points(pts, est, r + 0.012, names.TABLE_TOP_Z)
-            self.plan = plan_grasp(est, self.task.action, self.geometry,
+                r = object_radius_m(self.obj) + 0.012
+                obstacles = obstacle_points(pts, est, r, names.TABLE_TOP_Z)
+            self.plan = plan_grasp(self.obj, est, self.task.action, table_z=names.TABLE_TOP_Z,
                                    preferred_yaw=float(obs["pinch_yaw"][0]),
-                                   table_z=names.TABLE_TOP_Z, obstacles_world=obstacles)  # fmt: skip
+                                   obstacles_world=obstacles)  # fmt: skip
+            if self.plan is None:  # no grasp fits the estimate: wait for the next one
+                return np.array([0, 0, 0, 0, -1], np.float32)
         plan = self.plan
         pinch = np.asarray(obs["pinch_pos"], dtype=float)
         grasp = np.asarray(plan.grasp_point_world)
         yaw_err = abs(wrap_angle(plan.yaw_rad - float(obs["pinch_yaw"][0])))
+        open_grip = self._preshape_grip(obs, plan.preshape_q)
         if self.phase == "approach":
             if np.linalg.norm(plan.pregrasp_world - pinch) < 0.006 and yaw_err < 0.05:
                 self.phase = "descend"
-            return self._goal_action(obs, plan.pregrasp_world, plan.yaw_rad, -1.0)
+            return self._goal_action(obs, plan.pregrasp_world, plan.yaw_rad, open_grip)
         if self.phase == "descend":
             if np.linalg.norm(grasp - pinch) < 0.004:
                 self.phase, self._count = "close", 0
-            return self._goal_action(obs, grasp, plan.yaw_rad, -1.0)
+            return self._goal_action(obs, grasp, plan.yaw_rad, open_grip)
         if self.phase == "close":
             self._count += 1
             t = np.nan_to_num(np.asarray(obs["touch"], dtype=float), nan=-1.0)
@@ -76,6 +115,11 @@ class ScriptedGraspPolicy:
                 and t[0] > TOUCH_THRESHOLD_N
                 and max(t[1], t[2]) > TOUCH_THRESHOLD_N
             ):
+                self.phase, self._count = "squeeze", 0
+            return self._goal_action(obs, grasp, plan.yaw_rad, self.close_grip)
+        if self.phase == "squeeze":  # as ArmHandController.close: squeeze before lifting
+            self._count += 1
+            if self._count >= 3:
                 self.phase = "lift"
-            return self._goal_action(obs, grasp, plan.yaw_rad, 1.0)
-        return self._goal_action(obs, plan.lifted_world, plan.yaw_rad, 1.0)
+            return self._goal_action(obs, grasp, plan.yaw_rad, self.squeeze_grip)
+        return self._goal_action(obs, plan.lifted_world, plan.yaw_rad, self.squeeze_grip)
