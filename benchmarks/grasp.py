@@ -2,6 +2,7 @@
 finder failed (localization then runs on the stereo pair); time per episode.
 
     .venv/bin/python benchmarks/grasp.py --episodes 100 --workers 2
+    .venv/bin/python benchmarks/grasp.py --episodes 1000 --backend ray --address auto
 
 Writes benchmarks/results/grasp.md (and grasp.json beside it).
 """
@@ -14,10 +15,13 @@ import platform
 import statistics
 import sys
 import time
+from contextlib import nullcontext
 from datetime import UTC, datetime
 from pathlib import Path
 
 from mks_sim.cli.grasp import run_episodes
+from mks_sim.tasks import backends
+from mks_sim.tasks.backends import BACKENDS, check_backend, ray_session
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -32,8 +36,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=1000)
     p.add_argument("--env-episodes", type=int, default=0,
                    help="episodes per object of the scripted policy through mks_sim/Grasp-v1")  # fmt: skip
+    p.add_argument("--backend", choices=BACKENDS, default="local",
+                   help="local process pool (--workers) or Ray tasks (one session for the sweep)")  # fmt: skip
+    p.add_argument("--address", default=None,
+                   help="--backend ray: auto or HOST:PORT of a running cluster (default: local Ray)")  # fmt: skip
     p.add_argument("--out", type=Path, default=RESULTS / "grasp.md")
     args = p.parse_args(argv)
+    check_backend(args.backend, args.address)
+    with ray_session(args.address, args.workers) if args.backend == "ray" else nullcontext():
+        return _sweep(args)
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    where = {"backend": args.backend, "address": args.address, "workers": args.workers}
     n_failed = args.episodes if args.failed_episodes is None else args.failed_episodes
     runs: list[dict] = []
     t0 = time.perf_counter()
@@ -45,7 +60,8 @@ def main(argv: list[str] | None = None) -> int:
             if n <= 0:
                 continue
             t = time.perf_counter()
-            eps = run_episodes(obj, range(args.seed, args.seed + n), faults, args.workers)
+            eps = run_episodes(obj, range(args.seed, args.seed + n), faults, args.workers,
+                               backend=args.backend, address=args.address)  # fmt: skip
             wall = time.perf_counter() - t
             runs.append({"object": obj, "condition": condition, "episodes": eps, "wall_s": wall})
             ok = sum(e["success"] for e in eps)
@@ -54,7 +70,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.env_episodes > 0:
         for obj in args.objects:
             t = time.perf_counter()
-            eps = _env_episodes(obj, range(args.seed, args.seed + args.env_episodes), args.workers)
+            seeds = range(args.seed, args.seed + args.env_episodes)
+            eps = backends.run_episodes([(obj, s) for s in seeds], fn=_env_episode, **where,
+                                        desc=f"env {obj}")  # fmt: skip
             wall = time.perf_counter() - t
             runs.append(
                 {
@@ -103,17 +121,6 @@ def _env_episode(job: tuple[str, int]) -> dict:
     }
 
 
-def _env_episodes(obj: str, seeds: range, workers: int) -> list[dict]:
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    jobs = [(obj, s) for s in seeds]
-    with ProcessPoolExecutor(
-        max_workers=workers, mp_context=multiprocessing.get_context("spawn")
-    ) as pool:
-        return list(pool.map(_env_episode, jobs))
-
-
 def _write(args: argparse.Namespace, runs: list[dict], total_s: float) -> None:
     rows = []
     for r in runs:
@@ -144,7 +151,7 @@ def _write(args: argparse.Namespace, runs: list[dict], total_s: float) -> None:
         f"- date: {datetime.now(UTC).strftime('%Y-%m-%d %H:%M UTC')}",
         f"- machine: {platform.machine()}, 2 cores shared with other jobs ({platform.python_version()})",
         f"- command: `{cmd}`",
-        f"- seeds {args.seed}.. (random object poses of scene 2 / the part scene), `--workers {args.workers}`",
+        f"- seeds {args.seed}.. (random object poses of scene 2 / the part scene), `--workers {args.workers}`, `--backend {args.backend}`",
         f"- total wall time {total_s / 60:.1f} min",
         "",
         "Success is judged with ground truth (object >= 8 cm above the table for the whole 1 s",

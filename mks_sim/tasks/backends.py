@@ -23,11 +23,12 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import multiprocessing
 import socket
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -35,7 +36,15 @@ from typing import Any
 
 from mks_sim.errors import MksError
 
-__all__ = ["BACKENDS", "EpisodeJob", "grasp_episode", "run_episodes", "ray_available"]
+__all__ = [
+    "BACKENDS",
+    "EpisodeJob",
+    "check_backend",
+    "grasp_episode",
+    "ray_available",
+    "ray_session",
+    "run_episodes",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -207,6 +216,24 @@ def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
         socket.create_connection((host.removeprefix("ray://"), int(port)), timeout_s).close()
     except OSError as exc:
         raise MksError(f"--address: no Ray cluster reachable at {address!r} ({exc})") from exc
+
+
+@contextlib.contextmanager
+def ray_session(address: str | None = None, workers: int = 1) -> Iterator[None]:
+    """Keep one Ray session open over several :func:`run_episodes` calls (a sweep).
+
+    Starts a local Ray with ``workers`` CPUs (``address=None``) or joins ``address``, unless
+    Ray is already initialised; shuts down only what it started.
+    """
+    check_backend("ray", address)
+    started = _ray_connect(address, workers)
+    try:
+        yield
+    finally:
+        if started:
+            import ray
+
+            ray.shutdown()
 
 
 def _ray_connect(address: str | None, workers: int) -> bool:
