@@ -77,9 +77,8 @@ def test_check_arguments_defaults_the_scene() -> None:
         check_arguments("scene2", "cube", ["stereo_middle"])
 
 
-def test_unknown_object_or_scene_is_rejected_by_the_parser(
-    capsys: pytest.CaptureFixture[str],
-) -> None:
-    with pytest.raises(SystemExit):
-        main(["localize", "--object", "pyramid"])
-    assert "invalid choice" in capsys.readouterr().err
+def test_unknown_object_or_scene_is_rejected(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["localize", "--object", "pyramid"]) == 2
+    assert "known objects: ['cube', 'part', 'sphere']" in capsys.readouterr().err
+    assert main(["localize", "--object", "cube", "--scene", "nowhere"]) == 2
+    assert "unknown scene 'nowhere'" in capsys.readouterr().err

@@ -38,6 +38,8 @@ COMMANDS = (
     "localize_cloud",
     "snapshot",
     "grasp",
+    "objects",
+    "scene",
 )
 
 

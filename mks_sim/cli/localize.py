@@ -5,9 +5,15 @@ Randomises the scene from ``--seed``, builds the devices (``--fail`` some of the
 matching -> refinement) and prints the estimate, the ground truth and the error. The ground
 truth (``mks_sim.sim.truth``) is read here, after localization, for evaluation only.
 
+Any object of the model database (``--models DIR`` adds folders) in any scene
+(``--scene NAME|FILE``); without ``--scene`` the first shipped scene holding the object
+(``worlds/*.toml``: scene2 for the cube and sphere, part for the part), else the object alone
+on the table, dropped from a random orientation.
+
 Example::
 
     mks-sim localize --scene scene2 --object cube --seed 3 --fail range_finder --json
+    mks-sim localize --object bracket --models my_models/ --seed 4
 """
 
 from __future__ import annotations
@@ -23,11 +29,7 @@ import numpy as np
 from mks_sim.errors import DeviceFailure, SensorFailure, SpecError
 from mks_sim.viz import NullRecorder, Recorder, add_rerun_argument, open_recorder
 
-HELP = "localize the cube, sphere or part from simulated sensors; estimate, truth and error"
-
-OBJECTS = ("cube", "sphere", "part")
-#: scene -> objects that can be localized in it.
-SCENE_OBJECTS: dict[str, tuple[str, ...]] = {"scene2": ("cube", "sphere"), "part": ("part",)}
+HELP = "localize a database object (cube, sphere, part, ...) from simulated sensors; estimate, truth and error"
 #: success: within this many mm and degrees of the ground truth.
 SUCCESS_MM = 5.0
 SUCCESS_DEG = 5.0
@@ -35,10 +37,14 @@ SUCCESS_DEG = 5.0
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--scene", default=None, choices=sorted(SCENE_OBJECTS),
-        help="scene (default: scene2 for cube/sphere, part for the part)",
+        "--scene", default=None, metavar="NAME|FILE",
+        help="scene name (worlds/*.toml) or scene file (default: the first shipped scene "
+        "holding the object, else the object alone on the table, dropped)",
     )  # fmt: skip
-    parser.add_argument("--object", required=True, choices=OBJECTS, help="object to localize")
+    parser.add_argument(
+        "--object", required=True, metavar="NAME", help="database object to localize"
+    )
+    add_models_argument(parser)
     parser.add_argument("--seed", type=int, default=0, help="seed of the scene layout and noise")
     parser.add_argument(
         "--fail", nargs="+", action="extend", default=[], metavar="DEVICE",
@@ -48,26 +54,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_rerun_argument(parser)
 
 
-def check_arguments(scene: str | None, obj: str, fail: Sequence[str]) -> str:
-    """Validate scene/object/devices; returns the scene.
+def add_models_argument(parser: argparse.ArgumentParser) -> None:
+    """``--models DIR`` (repeatable): extra model-database folders (also ``MKS_SIM_MODELS``)."""
+    parser.add_argument(
+        "--models", action="append", default=[], metavar="DIR",
+        help="extra model-database folder (repeatable; also MKS_SIM_MODELS, path-separated)",
+    )  # fmt: skip
+
+
+def check_arguments(
+    scene: str | None, obj: str, fail: Sequence[str], models: Sequence[str] = ()
+) -> str | None:
+    """Validate scene/object/devices; returns the scene (None: the default scene, the object
+    alone on the table).
 
     Raises:
+        NotFound: the object is not in the database, or the scene does not exist.
         SpecError: the object is not in that scene, or an unknown device name.
     """
     from mks_sim.devices import DEVICE_NAMES
+    from mks_sim.models.objects import load_object
+    from mks_sim.sim.scenes import scene_objects, scene_with_object
 
-    if obj not in OBJECTS:
-        raise SpecError(f"--object: expected one of {list(OBJECTS)}, got {obj!r}")
+    load_object(obj, models=models)  # NotFound lists the known objects
     if scene is None:
-        scene = next(s for s, objs in SCENE_OBJECTS.items() if obj in objs)
-    if scene not in SCENE_OBJECTS:
-        raise SpecError(f"--scene: expected one of {sorted(SCENE_OBJECTS)}, got {scene!r}")
-    if obj not in SCENE_OBJECTS[scene]:
-        where = next(s for s, objs in SCENE_OBJECTS.items() if obj in objs)
-        raise SpecError(
-            f"--object {obj} is not in scene {scene!r} (it holds {list(SCENE_OBJECTS[scene])}); "
-            f"use --scene {where}"
-        )
+        scene = scene_with_object(obj)
+    else:
+        held = scene_objects(scene)
+        if obj not in held:
+            where = scene_with_object(obj)
+            raise SpecError(
+                f"--object {obj} is not in scene {scene!r} (it holds {held}); "
+                + (f"use --scene {where}" if where else "leave out --scene for the default scene")
+            )
     unknown = [d for d in fail if d not in DEVICE_NAMES]
     if unknown:
         raise SpecError(
@@ -88,15 +107,18 @@ def run_trial(
     fail: Sequence[str] = (),
     scene: str | None = None,
     recorder: Recorder | None = None,
+    models: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Randomise, sense, localize and evaluate one object; the CLI's JSON record.
 
     Args:
-        obj: ``cube`` | ``sphere`` | ``part``.
+        obj: a database object name (``cube``, ``sphere``, ``part``, ...).
         seed: layout and device-noise seed.
         fail: devices failed for the trial.
-        scene: scene name (default: the object's scene).
+        scene: scene name or file (default: the first shipped scene holding the object,
+            else the object alone on the table, dropped).
         recorder: logs devices, logical sensors, hypotheses and the truth (default: off).
+        models: extra model-database folders.
 
     Returns:
         ``{"object", "scene", "seed", "found", "matrix", "truth", "error": {"position_mm",
@@ -105,13 +127,14 @@ def run_trial(
         ``failure`` names the fault when a needed logical sensor had no working way).
     """
     from mks_sim.devices import DeviceFaults, make_devices
-    from mks_sim.geometry.transforms import cube_rotations, pose_error
+    from mks_sim.models.objects import load_object
     from mks_sim.sim import truth
     from mks_sim.sim.world import build_world
+    from mks_sim.tasks.evaluate import object_pose_error
     from mks_sim.workstation import localize_object
 
-    scene = check_arguments(scene, obj, fail)
-    world = build_world(scene, seed=seed)
+    scene = check_arguments(scene, obj, fail, models)
+    world = build_world(scene, seed=seed, objects=[obj], models=models)
     faults = {d: DeviceFaults(failed=True) for d in fail}
     devices = make_devices(world.model, world.data, np.random.default_rng(seed), faults)
     rec = recorder if recorder is not None else NullRecorder()
@@ -119,9 +142,10 @@ def run_trial(
     failure: str | None = None
     t0 = time.perf_counter()
     try:
+        extra: dict[str, Any] = {"models": tuple(models)} if models else {}
         result = localize_object(
             world, obj, rec.tap_devices(devices), rng=np.random.default_rng(seed),
-            graph=rec.tap_graph(None),
+            graph=rec.tap_graph(None), **extra,
         )  # fmt: skip
         rec.log_localization(result, world=world)
         rec.log_camera_views()
@@ -138,10 +162,11 @@ def run_trial(
     rot_deg: float | None = None
     found = result is not None and bool(result.found)
     if result is not None and result.found and result.object_to_world is not None:
-        syms = cube_rotations() if obj == "cube" else None
-        p, r = pose_error(result.object_to_world, T_true, syms)
+        # modulo the object's symmetries; 0 deg when its orientation is not observable
+        p, rot_deg = object_pose_error(
+            load_object(obj, models=models), result.object_to_world, T_true
+        )
         pos_mm = 1000.0 * p
-        rot_deg = 0.0 if obj == "sphere" else r  # a sphere's orientation is not observable
     success = (
         pos_mm is not None
         and rot_deg is not None
@@ -150,7 +175,7 @@ def run_trial(
     )
     return {
         "object": obj,
-        "scene": scene,
+        "scene": scene if scene is not None else world.name,
         "seed": seed,
         "found": found,
         "matrix": None if result is None else _round_matrix(result.object_to_world),
@@ -187,8 +212,7 @@ def format_text(rec: dict[str, Any]) -> str:
     if rec["found"]:
         lines.append(
             f"error: position {err['position_mm']:.3f} mm, rotation {err['rotation_deg']:.3f} deg"
-            + (" (modulo the cube's 24 rotations)" if rec["object"] == "cube" else "")
-            + (" (orientation not observable)" if rec["object"] == "sphere" else "")
+            + " (modulo the object's symmetries)"
         )
     served = ", ".join(f"{k} <- {v}" for k, v in sorted(rec["provenance"].items()))
     lines.append(f"logical sensors: {served}")
@@ -201,9 +225,11 @@ def format_text(rec: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    scene = check_arguments(args.scene, args.object, args.fail)
+    scene = check_arguments(args.scene, args.object, args.fail, args.models)
     with open_recorder(args.rerun, "mks_sim localize") as recorder:
-        rec = run_trial(args.object, int(args.seed), tuple(args.fail), scene, recorder)
+        rec = run_trial(
+            args.object, int(args.seed), tuple(args.fail), scene, recorder, models=args.models
+        )
     if args.json:
         out = {k: rec[k] for k in ("object", "found", "matrix", "truth", "error", "provenance")}
         out["time_s"] = rec["time_s"]

@@ -35,7 +35,7 @@ class _Surface:
         self.tree = cKDTree(self.ref)
         spacing = math.sqrt(mesh.area / n_ref)
         extent = float(np.max(mesh.bounds[1] - mesh.bounds[0]))
-        self.tol = max(3.0 * spacing, 0.01 * extent)
+        self.tol = max(1.5 * spacing, 0.003 * extent)
 
     def passes(self, R: FloatArray) -> bool:
         p = (self.test - self.centre) @ R.T + self.centre

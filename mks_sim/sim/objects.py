@@ -1,32 +1,37 @@
-"""Objects of the workstation: cube, sphere, industrial part, clutter and scene-1 flat parts.
+"""Objects of the workstation: database objects (cube, sphere, part, any added mesh), clutter
+and scene-1 flat parts.
 
 Every object is a body with a free joint (``names.free_joint(body)``). The BODY frame is the
 object frame (ground truth, ``mks_sim.sim.truth``): MuJoCo moves a mesh into its
 principal-axes frame internally, so geom frames are not object frames.
 
-Geom groups: group 0 geoms are rendered and ray cast (what sensors see). The industrial
-part's true (non-convex) mesh is a group-0 geom with no collision (contype = conaffinity =
-0) that carries the mass with exact mesh inertia; its contact shape is a convex
-decomposition of primitives in group 3 (invisible, not ray cast by the devices).
+A database object (:class:`mks_sim.models.objects.ObjectModel`) becomes MJCF by
+:func:`add_object`: a builtin box or sphere with ``collision = "primitive"`` is that MuJoCo
+primitive; any other mesh is a group-0 geom that renders, is ray cast and carries the mass
+(exact mesh inertia) but does not collide (contype = conaffinity = 0), plus its contact shape
+in group 3 (invisible, not ray cast by the devices): the mesh itself (MuJoCo collides with its
+convex hull), the industrial part's hand-made decomposition, or the convex parts CoACD wrote
+(``mks-sim objects add``).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from dm_control import mjcf
 
 from mks_sim.sim import names
 
+if TYPE_CHECKING:
+    from mks_sim.models.objects import ObjectModel
+
 log = logging.getLogger(__name__)
 
-OBJECT_FRICTION = (1.0, 0.01, 0.0002)
-# The sphere gets rolling friction (condim 6) so it stays balanced on the cube's top face.
-SPHERE_FRICTION = (1.0, 0.01, 0.0005)
+OBJECT_FRICTION = (1.0, 0.01, 0.0002)  # clutter, table (database objects carry their own)
 DENSITY_WOOD = 600.0  # kg/m^3; light objects the Jaco (~25 N grip) handles easily
-DENSITY_PART = 1200.0  # plastic-like industrial part
 
 
 @dataclass(frozen=True)
@@ -41,6 +46,9 @@ class ObjectSpec:
         footprint_radius_m: radius of a vertical cylinder holding the object (for
             non-overlapping random placement).
         rest_quat: (w, x, y, z) canonical resting orientation before the random yaw.
+        model: the database object name (None for clutter and flat parts).
+        hull: (H, 3) vertexes of the convex hull in the body frame (for dropping the object
+            from a random orientation: its lowest point), or None.
     """
 
     name: str
@@ -48,6 +56,15 @@ class ObjectSpec:
     rest_height_m: float
     footprint_radius_m: float
     rest_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    model: str | None = None
+    hull: np.ndarray | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def reach_m(self) -> float:
+        """Largest distance of the body from its origin (any orientation's footprint)."""
+        if self.hull is None:
+            return float(np.hypot(self.footprint_radius_m, self.rest_height_m))
+        return float(np.max(np.linalg.norm(self.hull, axis=1)))
 
 
 def random_dot_material(
@@ -100,42 +117,6 @@ def _object_body(
     return body
 
 
-def add_cube(root: mjcf.RootElement, pos: tuple[float, float, float]) -> ObjectSpec:
-    """The 5 cm cube (box geom, random-dot red texture)."""
-    half = names.CUBE_SIZE_M / 2
-    mat = random_dot_material(root, "cube_mat", (0.75, 0.2, 0.15), (1.0, 0.95, 0.8), size=64)
-    body = _object_body(root, names.CUBE, pos)
-    body.add(
-        "geom",
-        name="cube_geom",
-        type="box",
-        size=[half] * 3,
-        material=mat,
-        density=DENSITY_WOOD,
-        friction=OBJECT_FRICTION,
-        condim=4,
-    )
-    return ObjectSpec(names.CUBE, "cube", half, half * np.sqrt(2))
-
-
-def add_sphere(root: mjcf.RootElement, pos: tuple[float, float, float]) -> ObjectSpec:
-    """The 3 cm radius sphere (random-dot blue texture, rolling friction)."""
-    r = names.SPHERE_RADIUS_M
-    mat = random_dot_material(root, "sphere_mat", (0.15, 0.3, 0.75), (0.9, 0.95, 1.0), size=64)
-    body = _object_body(root, names.SPHERE, pos)
-    body.add(
-        "geom",
-        name="sphere_geom",
-        type="sphere",
-        size=[r],
-        material=mat,
-        density=DENSITY_WOOD,
-        friction=SPHERE_FRICTION,
-        condim=6,
-    )
-    return ObjectSpec(names.SPHERE, "sphere", r, r)
-
-
 def add_clutter(root: mjcf.RootElement, index: int, pos: tuple[float, float, float]) -> ObjectSpec:
     """Simple 3-D clutter of scene 2: 0 = cylinder, 1 = flat block, 2 = tall block."""
     name = names.CLUTTER[index]
@@ -167,47 +148,148 @@ def _triplanar_texcoords(vertices: np.ndarray, scale_m: float = 0.05) -> np.ndar
     return np.column_stack([(v[:, 0] + v[:, 2]) / scale_m, (v[:, 1] + v[:, 2]) / scale_m])
 
 
-def add_part(root: mjcf.RootElement, pos: tuple[float, float, float]) -> ObjectSpec:
-    """The industrial part ("Renault piece", ``mks_sim.geometry.meshes``).
+def add_object(
+    root: mjcf.RootElement,
+    obj: ObjectModel,
+    pos: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    *,
+    body_name: str | None = None,
+) -> ObjectSpec:
+    """Add database object ``obj`` as a free body named ``body_name`` (default ``obj.name``).
 
-    The true mesh is generated at build time and inlined into the MJCF (``<mesh vertex=
-    face= texcoord=>``; no file on disk): a group-0 geom that renders, ray casts and carries
-    the mass (exact mesh inertia) but does not collide. Contact uses the convex decomposition
-    ``industrial_part_boxes()`` as massless group-3 primitives.
+    Geom, material and mesh names start with the body name (``cube_geom``, ``part_visual``,
+    ``part_collision_3``, ``part_mesh``, ``part_mat``). The resting spec is the mesh's
+    upright pose (body z up, lowest vertex on the support).
     """
-    from mks_sim.geometry.meshes import industrial_part_boxes, industrial_part_mesh
+    name = body_name or obj.name
+    mesh = obj.mesh
+    volume = mesh.volume
+    density = obj.density if obj.density is not None else float(obj.mass or 0.0) / volume
+    body = _object_body(root, name, pos)
+    v = mesh.vertices
+    lo = v.min(axis=0)
+    if abs(lo[2]) > 0.5 and obj.primitive is None:  # metres: a body origin 50 cm off the mesh
+        log.warning("object %r: mesh bottom at z = %.3f m from its origin", obj.name, lo[2])
+    footprint = float(np.max(np.hypot(v[:, 0], v[:, 1])))
+    from scipy.spatial import ConvexHull
 
-    mesh = industrial_part_mesh()
-    # Unwelded (three vertices per face) with face normals: flat shading of the planar faces
-    # and per-face texture coordinates.
+    hull = v[ConvexHull(v).vertices]
+    spec = ObjectSpec(
+        name, obj.description or obj.name, -float(lo[2]), footprint, model=obj.name, hull=hull
+    )
+    common = dict(friction=obj.friction, condim=obj.condim)
+    if obj.primitive is not None and obj.collision == "primitive":
+        mat = random_dot_material(root, f"{name}_mat", obj.rgb, obj.dots, size=64)
+        if obj.primitive == "box":
+            size = list((v.max(axis=0) - lo) / 2)
+            spec = ObjectSpec(
+                name, "box", size[2], float(np.hypot(size[0], size[1])), model=obj.name, hull=hull
+            )
+        else:
+            size = [float(np.max(np.linalg.norm(v, axis=1)))]
+            spec = ObjectSpec(name, "sphere", size[0], size[0], model=obj.name, hull=hull)
+        body.add(
+            "geom",
+            name=f"{name}_geom",
+            type=obj.primitive,
+            size=size,
+            material=mat,
+            density=density,
+            **common,
+        )
+        return spec
+    # Unwelded (three vertices per face) with face normals: flat shading of planar faces and
+    # per-face texture coordinates.
     corners = mesh.vertices[mesh.faces].reshape(-1, 3)  # (3F, 3)
     asset = root.asset.add(
         "mesh",
-        name="part_mesh",
+        name=f"{name}_mesh",
         vertex=corners.ravel(),
         face=np.arange(len(corners)),
         normal=np.repeat(mesh.normals, 3, axis=0).ravel(),
         texcoord=_triplanar_texcoords(corners).ravel(),
-        inertia="exact",
+        inertia=obj.inertia,
     )
-    mat = random_dot_material(
-        root, "part_mat", (0.55, 0.58, 0.62), (0.15, 0.15, 0.18), kind="2d", size=128
-    )
-    body = _object_body(root, names.PART, pos)
+    mat = random_dot_material(root, f"{name}_mat", obj.rgb, obj.dots, kind="2d", size=128)
     body.add(
         "geom",
-        name="part_visual",
+        name=f"{name}_visual",
         type="mesh",
         mesh=asset,
         material=mat,
-        density=DENSITY_PART,
+        density=density,
         contype=0,
         conaffinity=0,
         group=names.GROUP_VISUAL,
     )
+    collision = dict(
+        density=0.0, group=names.GROUP_COLLISION_ONLY, rgba=(0.9, 0.4, 0.1, 0.5), **common
+    )
+    if obj.collision == "builtin:industrial_part":
+        _add_part_primitives(body, name, collision)
+    elif obj.collision == "mesh" or obj.collision == "primitive":
+        hull_asset = root.asset.add(
+            "mesh",
+            name=f"{name}_collision_mesh",
+            vertex=mesh.vertices.ravel(),
+            face=mesh.faces.ravel(),
+        )
+        body.add("geom", name=f"{name}_collision_0", type="mesh", mesh=hull_asset, **collision)
+    else:
+        from mks_sim.io.mesh import read_mesh
+
+        assert not isinstance(obj.collision, str)
+        for i, path in enumerate(obj.collision):
+            piece = read_mesh(path)
+            piece_asset = root.asset.add(
+                "mesh",
+                name=f"{name}_collision_mesh_{i}",
+                vertex=piece.vertices.ravel(),
+                face=piece.faces.ravel(),
+            )
+            body.add(
+                "geom", name=f"{name}_collision_{i}", type="mesh", mesh=piece_asset, **collision
+            )
+    return spec
+
+
+def _prism(radius: float, half_h: float, n: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """Vertexes and faces of a convex n-gon prism about z (MuJoCo collides with the hull)."""
+    a = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    ring = np.column_stack([radius * np.cos(a), radius * np.sin(a)])
+    v = np.vstack(
+        [np.column_stack([ring, np.full(n, -half_h)]), np.column_stack([ring, np.full(n, half_h)])]
+    )
+    from scipy.spatial import ConvexHull
+
+    return v, ConvexHull(v).simplices
+
+
+def _add_part_primitives(body: mjcf.Element, name: str, collision: dict) -> None:
+    """The industrial part's convex decomposition (``industrial_part_boxes``): boxes, and the
+    boss as a 32-gon prism mesh (a MuJoCo cylinder primitive lying on the table box sinks
+    into it and walks: measured with the part dropped on its side)."""
     from scipy.spatial.transform import Rotation
 
+    from mks_sim.geometry.meshes import industrial_part_boxes
+
     for i, prim in enumerate(industrial_part_boxes()):
+        if prim.kind == "cylinder":
+            x, y, z, w = Rotation.from_matrix(prim.rotation).as_quat()
+            v, f = _prism(prim.half_sizes[0], prim.half_sizes[2])
+            asset = body.root.asset.add(
+                "mesh", name=f"{name}_collision_mesh_{i}", vertex=v.ravel(), face=f.ravel()
+            )
+            body.add(
+                "geom",
+                name=f"{name}_collision_{i}",
+                type="mesh",
+                mesh=asset,
+                pos=prim.centre,
+                quat=(w, x, y, z),
+                **collision,
+            )
+            continue
         x, y, z, w = Rotation.from_matrix(prim.rotation).as_quat()
         size = (
             list(prim.half_sizes)
@@ -216,20 +298,10 @@ def add_part(root: mjcf.RootElement, pos: tuple[float, float, float]) -> ObjectS
         )
         body.add(
             "geom",
-            name=f"part_collision_{i}",
+            name=f"{name}_collision_{i}",
             type=prim.kind,
             size=size,
             pos=prim.centre,
             quat=(w, x, y, z),
-            density=0.0,
-            group=names.GROUP_COLLISION_ONLY,
-            rgba=(0.9, 0.4, 0.1, 0.5),
-            friction=OBJECT_FRICTION,
-            condim=4,
+            **collision,
         )
-    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
-    footprint = float(np.max(np.hypot(mesh.vertices[:, 0], mesh.vertices[:, 1])))
-    if lo[2] != 0.0:
-        log.warning("part mesh bottom at z = %.4f m, expected 0 (object frame)", lo[2])
-    del hi
-    return ObjectSpec(names.PART, "industrial part", -float(lo[2]), footprint)

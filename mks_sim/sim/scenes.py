@@ -1,10 +1,14 @@
 """Scene assembly: the workstation (table, cameras, range-finder mounts, Jaco) + objects.
 
-Each scene is an MJCF model assembled from code with dm_control's ``mjcf``; nothing is read
-from disk except dm_control's robot assets. ``build_scene(name)`` returns the MJCF root, the
-robot entities and the specs of the objects that ``World.randomize`` places.
+Scenes are data: ``worlds/<name>.toml`` (schema in ``docs/worlds.md``) names the objects by
+their model-database name (``mks_sim.models.objects``) with counts, default layout and pose
+randomisation (``upright``: resting on the mesh's base with random x, y, yaw; ``drop``: from
+a random orientation, settled by physics onto any stable face), clutter, lights and the table
+texture. ``build_scene(name_or_file)`` assembles the MJCF with dm_control's ``mjcf`` and
+returns the root, the robot entities and the specs of the objects ``World.randomize`` places.
+``default_scene(objects)`` is the scene of objects alone on the table, dropped.
 
-Scenes (paper section 4.1):
+Scenes shipped (paper section 4.1):
     ``scene1``: a light tray of dark flat parts (discs, nuts, washer, plates) seen from
         above -- the paper's Figure 4-1, laid out after Tables 4-1 / 4-3.
     ``scene2``: the cube with the sphere atop it among three clutter objects (Scenes 2, 3).
@@ -13,14 +17,17 @@ Scenes (paper section 4.1):
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+import math
+import tomllib
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from dm_control import mjcf
 
-from mks_sim.errors import NotFound
+from mks_sim.errors import NotFound, SpecError
 from mks_sim.sim import names, objects
 from mks_sim.sim.robot import Robot, add_robot
 
@@ -31,6 +38,27 @@ TIMESTEP = 0.002
 # stiff as the normal constraint (held objects do not creep); a few noslip iterations remove
 # the residual drift of soft contacts. Measured slip: see docs/worlds.md.
 CONTACT_OPTIONS = dict(cone="elliptic", impratio=10.0, noslip_iterations=4)
+
+
+POSES = ("upright", "drop")
+
+
+@dataclass(frozen=True)
+class Placement:
+    """How one object is randomised.
+
+    Attributes:
+        pose: ``"upright"`` (resting on its base, random yaw) or ``"drop"`` (random
+            orientation, released just above the support and settled by physics).
+        x: world x range of the body origin, or None for the scene's region.
+        y: world y range, or None for the region.
+        yaw: yaw range, radians.
+    """
+
+    pose: str = "upright"
+    x: tuple[float, float] | None = None
+    y: tuple[float, float] | None = None
+    yaw: tuple[float, float] = (-math.pi, math.pi)
 
 
 @dataclass(frozen=True)
@@ -47,6 +75,9 @@ class SceneSpec:
         region_center_xy: centre of the placement region (m, world).
         region_half_xy: half extents of the placement region (m).
         support_z: world z of the surface the objects rest on.
+        placements: body -> how ``World.randomize`` places it (bodies not listed: upright
+            anywhere in the region with a uniform yaw).
+        source: the scene file (None for scenes built in code).
     """
 
     name: str
@@ -57,6 +88,13 @@ class SceneSpec:
     region_center_xy: tuple[float, float] = names.OBJECT_REGION_CENTER_XY
     region_half_xy: tuple[float, float] = names.OBJECT_REGION_HALF_XY
     support_z: float = names.TABLE_TOP_Z
+    placements: Mapping[str, Placement] = field(default_factory=dict)
+    source: Path | None = None
+
+    @property
+    def models(self) -> dict[str, str]:
+        """Body -> database object name, for the database objects of the scene."""
+        return {o.name: o.model for o in self.objects if o.model is not None}
 
 
 def look_at_xyaxes(eye: np.ndarray, target: np.ndarray) -> list[float]:
@@ -86,7 +124,11 @@ def boresight_quat(eye: np.ndarray, target: np.ndarray) -> list[float]:
     return [q[3], q[0], q[1], q[2]]
 
 
-def _workstation(model_name: str) -> tuple[mjcf.RootElement, Robot]:
+def _workstation(
+    model_name: str,
+    table_rgb: tuple[float, float, float] = (0.62, 0.55, 0.45),
+    table_dots: tuple[float, float, float] = (0.35, 0.28, 0.2),
+) -> tuple[mjcf.RootElement, Robot]:
     root = mjcf.RootElement(model=model_name)
     root.option.timestep = TIMESTEP
     for key, value in CONTACT_OPTIONS.items():
@@ -126,8 +168,8 @@ def _workstation(model_name: str) -> tuple[mjcf.RootElement, Robot]:
     table_mat = objects.random_dot_material(
         root,
         "table_mat",
-        (0.62, 0.55, 0.45),
-        (0.35, 0.28, 0.2),
+        table_rgb,
+        table_dots,
         density=0.3,
         kind="2d",
         size=256,
@@ -200,99 +242,365 @@ def _add_sensor_mounts(root: mjcf.RootElement, centre: np.ndarray) -> None:
         )
 
 
-def _rest_at(root: mjcf.RootElement, spec: objects.ObjectSpec, xy: tuple[float, float]) -> None:
-    """Put ``spec``'s body at rest on the table at ``xy`` (its canonical orientation)."""
-    body = root.find("body", spec.name)
-    body.pos = (xy[0], xy[1], names.TABLE_TOP_Z + spec.rest_height_m)
-    body.quat = spec.rest_quat
+# --------------------------------------------------------------------------- scene files
+
+_SCENE_KEYS = {"name", "description", "region", "support", "flat_parts"}
+_OBJECT_KEYS = {"name", "count", "at", "yaw_deg", "pose", "x", "y", "yaw", "on"}
+_CLUTTER_KEYS = {"shape", "size", "at", "rgb", "dots"}
+_LIGHT_KEYS = {"name", "pos", "dir", "diffuse", "directional"}
+_TOP_KEYS = {"scene", "table", "object", "clutter", "light"}
 
 
-def scene2() -> SceneSpec:
-    """The cube with the sphere atop it among three clutter objects."""
-    root, robot = _workstation("scene2")
-    cube = objects.add_cube(root, (0.0, 0.0, 0.0))
-    _rest_at(root, cube, (0.0, 0.0))
-    sphere = objects.add_sphere(root, (0.0, 0.0, 0.0))
-    on_top = names.TABLE_TOP_Z + 2 * cube.rest_height_m + sphere.rest_height_m
-    root.find("body", names.SPHERE).pos = (0.0, 0.0, on_top)
-    clutter = []
-    for i, xy in enumerate(((-0.09, 0.05), (0.08, 0.06), (-0.07, -0.07))):
-        clutter.append(objects.add_clutter(root, i, (0.0, 0.0, 0.0)))
-        _rest_at(root, clutter[-1], xy)
+def _pair(v: Any, where: str, key: str) -> tuple[float, float]:
+    if (
+        not isinstance(v, list)
+        or len(v) != 2
+        or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
+        or not all(math.isfinite(x) for x in v)
+    ):
+        raise SpecError(f"{where}: field {key!r}: expected [a, b] finite numbers, got {v!r}")
+    return float(v[0]), float(v[1])
+
+
+def _vec(v: Any, n: int, where: str, key: str) -> tuple[float, ...]:
+    if (
+        not isinstance(v, list)
+        or len(v) != n
+        or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
+        or not all(math.isfinite(x) for x in v)
+    ):
+        raise SpecError(f"{where}: field {key!r}: expected {n} finite numbers, got {v!r}")
+    return tuple(float(x) for x in v)
+
+
+def _table(v: Any, where: str) -> Mapping[str, Any]:
+    if not isinstance(v, Mapping):
+        raise SpecError(f"{where}: expected a table, got {v!r}")
+    return v
+
+
+def _tables(doc: Mapping[str, Any], key: str, where: str) -> list[Mapping[str, Any]]:
+    v = doc.get(key, [])
+    if not isinstance(v, list) or not all(isinstance(e, Mapping) for e in v):
+        raise SpecError(f"{where}: '{key}': expected [[{key}]] tables, got {v!r}")
+    return v
+
+
+def _unknown(entry: Mapping[str, Any], allowed: set[str], where: str) -> None:
+    _table(entry, where)
+    extra = set(entry) - allowed
+    if extra:
+        raise SpecError(f"{where}: unknown field(s) {sorted(extra)}; allowed: {sorted(allowed)}")
+
+
+def scene_file(name: str | Path) -> Path:
+    """The scene file of ``name``: a path to a ``.toml``, or ``worlds/<name>.toml``.
+
+    Raises:
+        NotFound: no such file (the message lists the shipped scenes).
+    """
+    p = Path(name)
+    if p.suffix == ".toml" or p.is_file():
+        if not p.is_file():
+            raise NotFound(f"scene file not found: {p}")
+        return p
+    from mks_sim.resources import data_dir
+
+    q = data_dir("worlds") / f"{name}.toml"
+    if not q.is_file():
+        raise NotFound(
+            f"unknown scene {str(name)!r}; expected one of {scene_names()} or a .toml file"
+        )
+    return q
+
+
+def scene_names() -> list[str]:
+    """The scenes shipped in ``worlds/`` (and any registered in code), sorted."""
+    from mks_sim.resources import data_dir
+
+    return sorted({p.stem for p in data_dir("worlds").glob("*.toml")} | set(_SCENES))
+
+
+def scene_objects(name: str | Path) -> list[str]:
+    """The database object names a scene file lists (its TOML only; nothing is built)."""
+    path = scene_file(name)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: not valid TOML: {exc}") from exc
+    return [str(e.get("name")) for e in doc.get("object", []) if isinstance(e, Mapping)]
+
+
+def scene_with_object(obj: str) -> str | None:
+    """The first shipped scene (by name) that lists database object ``obj``, or None."""
+    for name in scene_names():
+        if name not in _SCENES and obj in scene_objects(name):
+            return name
+    return None
+
+
+def load_scene_file(
+    path: str | Path, *, models: Sequence[str | Path] = (), name: str | None = None
+) -> SceneSpec:
+    """Build the scene described by the TOML file ``path``.
+
+    Args:
+        path: the scene file.
+        models: extra model folders for database object names (``--models DIR``).
+        name: the scene (and MJCF model) name; default the file's ``[scene] name`` or stem.
+
+    Raises:
+        SpecError: a malformed file (one line: file, entry, field, expected, got).
+        NotFound: the file, or a database object it names, does not exist.
+    """
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError as exc:
+        raise NotFound(f"scene file not found: {path}") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: not valid TOML: {exc}") from exc
+    return scene_from_doc(doc, path, models=models, name=name)
+
+
+def scene_from_doc(
+    doc: Mapping[str, Any],
+    path: Path | str,
+    *,
+    models: Sequence[str | Path] = (),
+    name: str | None = None,
+) -> SceneSpec:
+    """Build a scene from a parsed scene file ``doc`` (``path`` names it in messages)."""
+    path = Path(path)
+    _unknown(doc, _TOP_KEYS, str(path))
+    head = doc.get("scene", {})
+    _unknown(head, _SCENE_KEYS, f"{path}: [scene]")
+    scene_name = name or head.get("name", path.stem)
+    if not isinstance(scene_name, str) or not scene_name:
+        raise SpecError(f"{path}: [scene]: field 'name': expected a string, got {scene_name!r}")
+    table = doc.get("table", {})
+    _unknown(table, {"rgb", "dots"}, f"{path}: [table]")
+    root, robot = _workstation(
+        scene_name,
+        _vec(table.get("rgb", [0.62, 0.55, 0.45]), 3, f"{path}: [table]", "rgb"),  # type: ignore[arg-type]
+        _vec(table.get("dots", [0.35, 0.28, 0.2]), 3, f"{path}: [table]", "dots"),  # type: ignore[arg-type]
+    )
+    for i, light in enumerate(_tables(doc, "light", str(path))):
+        where = f"{path}: light {i}"
+        _unknown(light, _LIGHT_KEYS, where)
+        if not isinstance(light.get("name", ""), str) or not isinstance(
+            light.get("directional", False), bool
+        ):
+            raise SpecError(f"{where}: fields 'name' (a string), 'directional' (true|false)")
+        root.worldbody.add(
+            "light",
+            name=str(light.get("name", f"light_{i}")),
+            pos=_vec(light.get("pos", [0.0, 0.0, 2.0]), 3, where, "pos"),
+            dir=_vec(light.get("dir", [0.0, 0.0, -1.0]), 3, where, "dir"),
+            directional=bool(light.get("directional", False)),
+            castshadow=False,
+            diffuse=_vec(light.get("diffuse", [0.3, 0.3, 0.3]), 3, where, "diffuse"),
+        )
+    support = head.get("support", "table")
+    if support not in ("table", "tray"):
+        raise SpecError(
+            f"{path}: [scene]: field 'support': expected 'table' or 'tray', got {support!r}"
+        )
+    region_c, region_h = names.OBJECT_REGION_CENTER_XY, names.OBJECT_REGION_HALF_XY
+    support_z = names.TABLE_TOP_Z
+    specs: list[objects.ObjectSpec] = []
+    if support == "tray":
+        from mks_sim.sim import flatparts
+
+        flatparts.add_tray(root)
+        support_z = flatparts.TRAY_TOP_Z
+        margin = 0.01
+        region_c = (0.0, 0.0)
+        region_h = (flatparts.TRAY_HALF[0] - margin, flatparts.TRAY_HALF[1] - margin)
+        if head.get("flat_parts") == "paper":
+            specs += [flatparts.add_flat_part(root, part) for part in flatparts.CATALOGUE]
+        elif "flat_parts" in head:
+            raise SpecError(
+                f"{path}: [scene]: field 'flat_parts': expected 'paper', got {head['flat_parts']!r}"
+            )
+    if "region" in head:
+        reg = head["region"]
+        _unknown(reg, {"center", "half"}, f"{path}: [scene] region")
+        region_c = _pair(reg.get("center", list(region_c)), f"{path}: [scene] region", "center")
+        region_h = _pair(reg.get("half", list(region_h)), f"{path}: [scene] region", "half")
+    from mks_sim.models.objects import load_object
+
+    placements: dict[str, Placement] = {}
+    stacked: list[tuple[str, str]] = []
+    for i, entry in enumerate(_tables(doc, "object", str(path))):
+        db_name = entry.get("name")
+        where = f"{path}: object {db_name!r}" if db_name else f"{path}: object {i}"
+        if not isinstance(db_name, str):
+            raise SpecError(
+                f"{where}: field 'name': expected a database object name, got {db_name!r}"
+            )
+        _unknown(entry, _OBJECT_KEYS, where)
+        obj = load_object(db_name, models=models)
+        count = entry.get("count", 1)
+        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+            raise SpecError(f"{where}: field 'count': expected an integer >= 1, got {count!r}")
+        pose = entry.get("pose", "upright")
+        if pose not in POSES:
+            raise SpecError(f"{where}: field 'pose': expected one of {list(POSES)}, got {pose!r}")
+        yaw = tuple(math.radians(d) for d in _pair(entry.get("yaw", [-180, 180]), where, "yaw"))
+        xr = _pair(entry["x"], where, "x") if "x" in entry else None
+        yr = _pair(entry["y"], where, "y") if "y" in entry else None
+        at = _pair(entry.get("at", list(region_c)), where, "at")
+        yaw_deg = entry.get("yaw_deg", 0.0)
+        if isinstance(yaw_deg, bool) or not isinstance(yaw_deg, int | float):
+            raise SpecError(f"{where}: field 'yaw_deg': expected a number, got {yaw_deg!r}")
+        yaw0 = math.radians(float(yaw_deg))
+        on = entry.get("on")
+        if on is not None and not isinstance(on, str):
+            raise SpecError(f"{where}: field 'on': expected an object name, got {on!r}")
+        for k in range(count):
+            body = db_name if k == 0 else f"{db_name}_{k}"
+            spec = objects.add_object(root, obj, body_name=body)
+            specs.append(spec)
+            placements[body] = Placement(pose, xr, yr, yaw)  # type: ignore[arg-type]
+            xy = (at[0] + 2.2 * spec.reach_m * k, at[1])  # copies side by side
+            if on is not None:
+                below = next((s for s in specs if s.name == on), None)
+                if below is None:
+                    raise SpecError(
+                        f"{where}: field 'on': expected an object listed above, got {on!r}"
+                    )
+                b = root.find("body", on)
+                z = float(b.pos[2]) + below.rest_height_m + spec.rest_height_m
+                root.find("body", body).pos = (float(b.pos[0]), float(b.pos[1]), z)
+                stacked.append((body, on))
+                continue
+            root.find("body", body).pos = (xy[0], xy[1], support_z + spec.rest_height_m)
+            if yaw0:
+                root.find("body", body).quat = (math.cos(yaw0 / 2), 0.0, 0.0, math.sin(yaw0 / 2))
+    for i, entry in enumerate(_tables(doc, "clutter", str(path))):
+        where = f"{path}: clutter {i}"
+        _unknown(entry, _CLUTTER_KEYS, where)
+        spec = _add_clutter(
+            root,
+            len([s for s in specs if s.model is None and s.name.startswith("clutter_")]),
+            entry,
+            where,
+        )
+        specs.append(spec)
+        xy = _pair(entry.get("at", [0.0, 0.0]), where, "at")
+        root.find("body", spec.name).pos = (xy[0], xy[1], support_z + spec.rest_height_m)
+    if not specs:
+        raise SpecError(
+            f"{path}: expected at least one [[object]], [[clutter]] or flat_parts, got none"
+        )
     return SceneSpec(
-        name="scene2",
+        name=scene_name,
         root=root,
         robot=robot,
-        objects=(cube, sphere, *clutter),
-        stacked=((names.SPHERE, names.CUBE),),
+        objects=tuple(specs),
+        stacked=tuple(stacked),
+        region_center_xy=region_c,
+        region_half_xy=region_h,
+        support_z=support_z,
+        placements=placements,
+        source=path if path.is_file() else None,
     )
 
 
-def scene1() -> SceneSpec:
-    """Dark flat parts on a light tray in the paper's Figure 4-1 layout (``flatparts``)."""
-    from mks_sim.sim import flatparts
-
-    root, robot = _workstation("scene1")
-    flatparts.add_tray(root)
-    specs = tuple(flatparts.add_flat_part(root, part) for part in flatparts.CATALOGUE)
-    margin = 0.01
-    return SceneSpec(
-        name="scene1",
-        root=root,
-        robot=robot,
-        objects=specs,
-        region_center_xy=(0.0, 0.0),
-        region_half_xy=(flatparts.TRAY_HALF[0] - margin, flatparts.TRAY_HALF[1] - margin),
-        support_z=flatparts.TRAY_TOP_Z,
+def _add_clutter(
+    root: mjcf.RootElement, index: int, entry: Mapping[str, Any], where: str
+) -> objects.ObjectSpec:
+    """One ``[[clutter]]`` entry: a textured cylinder ([radius, half height]) or box (half
+    extents), not a database object (nothing localizes it)."""
+    shape = entry.get("shape")
+    if shape not in ("cylinder", "box"):
+        raise SpecError(f"{where}: field 'shape': expected 'cylinder' or 'box', got {shape!r}")
+    size = _vec(entry.get("size"), 2 if shape == "cylinder" else 3, where, "size")
+    name = f"clutter_{index}"
+    mat = objects.random_dot_material(
+        root,
+        f"{name}_mat",
+        _vec(entry.get("rgb", [0.5, 0.5, 0.5]), 3, where, "rgb"),  # type: ignore[arg-type]
+        _vec(entry.get("dots", [1.0, 1.0, 1.0]), 3, where, "dots"),  # type: ignore[arg-type]
+        size=64,
     )
+    body = root.worldbody.add("body", name=name, pos=(0.0, 0.0, 0.0))
+    body.add("freejoint", name=names.free_joint(name))
+    common = dict(
+        material=mat, density=objects.DENSITY_WOOD, friction=objects.OBJECT_FRICTION, condim=4
+    )
+    body.add("geom", name=f"{name}_geom", type=shape, size=list(size), **common)
+    if shape == "cylinder":
+        return objects.ObjectSpec(name, "cylinder", size[1], size[0])
+    return objects.ObjectSpec(name, "block", size[2], float(np.hypot(size[0], size[1])))
 
 
-def part_scene() -> SceneSpec:
-    """The industrial part alone on the table (yawed so no face is axis-aligned)."""
-    root, robot = _workstation("part")
-    spec = objects.add_part(root, (0.0, 0.0, 0.0))
-    _rest_at(root, spec, (0.0, 0.0))
-    root.find("body", names.PART).quat = (np.cos(0.175), 0.0, 0.0, np.sin(0.175))  # yaw 0.35
-    return SceneSpec(name="part", root=root, robot=robot, objects=(spec,))
+def default_scene(
+    object_names: Sequence[str], *, models: Sequence[str | Path] = (), name: str | None = None
+) -> SceneSpec:
+    """The database objects ``object_names`` alone on the table, each dropped from a random
+    orientation (``World.randomize``) anywhere in the object region."""
+    if not object_names:
+        raise SpecError("default scene: expected at least one object name, got none")
+    doc = {
+        "scene": {"name": name or "+".join(object_names)},
+        "object": [{"name": o, "pose": "drop"} for o in object_names],
+    }
+    return scene_from_doc(doc, "default scene", models=models)
 
 
-_SCENES: dict[str, Callable[[], SceneSpec]] = {
-    "scene1": scene1,
-    "scene2": scene2,
-    "part": part_scene,
-}
+_SCENES: dict[str, Callable[[], SceneSpec]] = {}
 
 
 def register_scene(name: str, builder: Callable[[], SceneSpec]) -> None:
-    """Register a scene builder under ``name``."""
+    """Register a scene builder in code under ``name`` (scene files are the usual way)."""
     _SCENES[name] = builder
 
 
-def build_scene(name: str) -> SceneSpec:
-    """Build the MJCF of scene ``name``.
+def build_scene(name: str | Path, *, models: Sequence[str | Path] = ()) -> SceneSpec:
+    """Build the MJCF of scene ``name``: a registered builder, ``worlds/<name>.toml`` or a
+    scene file path.
 
     Raises:
         NotFound: unknown scene name (the message lists the known ones).
+        SpecError: a malformed scene file.
     """
-    try:
-        builder = _SCENES[name]
-    except KeyError:
-        raise NotFound(f"unknown scene {name!r}; expected one of {sorted(_SCENES)}") from None
-    return builder()
+    if isinstance(name, str) and name in _SCENES:
+        return _SCENES[name]()
+    return load_scene_file(scene_file(name), models=models)
 
 
-def export_scene(name: str, out_dir: str | Path) -> Path:
-    """Write scene ``name`` as a standalone MJCF (+ the robot's mesh files) to ``out_dir``.
+def scene1() -> SceneSpec:
+    """Dark flat parts on a light tray in the paper's Figure 4-1 layout (``worlds/scene1.toml``)."""
+    return build_scene("scene1")
+
+
+def scene2() -> SceneSpec:
+    """The cube with the sphere atop it among three clutter objects (``worlds/scene2.toml``)."""
+    return build_scene("scene2")
+
+
+def part_scene() -> SceneSpec:
+    """The industrial part alone on the table (``worlds/part.toml``)."""
+    return build_scene("part")
+
+
+def export_scene(
+    name: str | Path | SceneSpec, out_dir: str | Path, *, models: Sequence[str | Path] = ()
+) -> Path:
+    """Write a scene as a standalone MJCF (+ the robot's mesh files) to ``out_dir``.
 
     For viewing and debugging outside mks_sim, e.g.
-    ``python -m mujoco.viewer --mjcf=<out_dir>/<name>.xml``. The objects are at the scene's
-    default layout; ``World`` state (arm home pose, randomisation) is not part of the file.
+    ``python -m mujoco.viewer --mjcf=<out_dir>/<name>.xml``. Object meshes (and their convex
+    collision parts) are inlined in the XML. The objects are at the scene's default layout;
+    ``World`` state (arm home pose, randomisation) is not part of the file.
 
     Returns:
         Path of the written XML file.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    spec = build_scene(name)
-    mjcf.export_with_assets(spec.root, str(out), out_file_name=f"{name}.xml")
-    return out / f"{name}.xml"
+    spec = name if isinstance(name, SceneSpec) else build_scene(name, models=models)
+    mjcf.export_with_assets(spec.root, str(out), out_file_name=f"{spec.name}.xml")
+    return out / f"{spec.name}.xml"

@@ -10,6 +10,8 @@ Example:
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -17,10 +19,10 @@ from dm_control import mjcf
 from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
-from mks_sim.errors import DataError, MksError, NotFound
+from mks_sim.errors import DataError, MksError, NotFound, SpecError
 from mks_sim.sim import names
 from mks_sim.sim.robot import Robot
-from mks_sim.sim.scenes import SceneSpec, build_scene
+from mks_sim.sim.scenes import SceneSpec, build_scene, default_scene
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +31,10 @@ log = logging.getLogger(__name__)
 HOME_ARM_QPOS = (-1.107, 2.788, 1.171, 3.725, -1.846, 4.189)
 HOME_FINGER_QPOS = (0.2, 0.2, 0.2)
 SETTLE_STEPS = 250  # 0.5 s at 2 ms: objects dropped from their resting height come to rest
+# Objects dropped from a random orientation tumble onto a stable face: 1.5 s more.
+DROP_SETTLE_STEPS = 750
+DROP_CLEARANCE_M = 0.003  # lowest point of a dropped object above the support at release
+DROP_DAMPING_TAU_S = 0.05  # rotational damping time constant while a dropped object settles
 _MIN_GAP_M = 0.012  # clearance between footprints of randomly placed objects
 _MAX_TRIES = 100  # per object, before the whole layout restarts
 _MAX_LAYOUTS = 200
@@ -136,10 +142,13 @@ class World:
     def randomize(self, rng: np.random.Generator, settle_steps: int = SETTLE_STEPS) -> None:
         """Place the objects at random non-overlapping resting poses in the object region.
 
-        Each free-standing object gets a uniform position (footprint inside the region) and
-        a uniform yaw; stacked objects (scene 2's sphere) sit on their support with a small
-        random offset. The arm goes home, then the world settles ``settle_steps`` steps and
-        all velocities are zeroed.
+        Each free-standing object gets a uniform position (footprint inside the region, or
+        the scene file's x, y ranges) and a uniform yaw; an object placed with ``pose =
+        "drop"`` also gets a uniform random orientation and is released just above the
+        support, then settles (``DROP_SETTLE_STEPS`` more) onto whichever stable face it
+        falls on. Stacked objects (scene 2's sphere) sit on their support with a small random
+        offset. The arm goes home, then the world settles ``settle_steps`` steps and all
+        velocities are zeroed.
 
         Raises:
             MksError: no non-overlapping placement found.
@@ -148,8 +157,14 @@ class World:
         self._set_home()
         specs = {s.name: s for s in scene.objects}
         placed = self._sample_layout(rng)
+        dropped: list[str] = []
         for name, (xy, yaw) in placed.items():
             spec = specs[name]
+            placement = scene.placements.get(name)
+            if placement is not None and placement.pose == "drop":
+                self._drop(name, xy, yaw, rng)
+                dropped.append(name)
+                continue
             self._place(name, xy, yaw, scene.support_z + spec.rest_height_m, spec.rest_quat)
         for top, bottom in scene.stacked:
             b = specs[bottom]
@@ -161,7 +176,44 @@ class World:
                 top, (bx + offset[0], by + offset[1]), rng.uniform(-np.pi, np.pi), z, t.rest_quat
             )
         mujoco.mj_forward(self.model, self.data)
+        if dropped:
+            self._settle_damped(dropped)
         self.settle(settle_steps)
+
+    def _settle_damped(self, bodies: list[str]) -> None:
+        """Let dropped objects topple onto a stable face with their rotation damped.
+
+        A light object released on an edge topples fast and, with MuJoCo's soft contacts,
+        can keep tumbling off the table; damping the rotational degrees of freedom (time
+        constant ``DROP_DAMPING_TAU_S``) makes the fall quasi-static. The damping is removed
+        afterwards.
+        """
+        m = self.model
+        saved = m.dof_damping.copy()
+        for name in bodies:
+            j = m.joint(names.free_joint(name))
+            b = m.body(name).id
+            adr = int(j.dofadr[0])
+            m.dof_damping[adr + 3 : adr + 6] = float(np.max(m.body_inertia[b])) / DROP_DAMPING_TAU_S
+        try:
+            self.settle(DROP_SETTLE_STEPS)
+        finally:
+            m.dof_damping[:] = saved
+
+    def _drop(
+        self, name: str, xy: tuple[float, float], yaw: float, rng: np.random.Generator
+    ) -> None:
+        """Release ``name`` at ``xy`` in a uniform random orientation, just above the support."""
+        from mks_sim.geometry.transforms import random_rotation
+
+        spec = next(s for s in self.scene.objects if s.name == name)
+        R = Rotation.from_euler("z", yaw).as_matrix() @ random_rotation(rng)
+        hull = spec.hull if spec.hull is not None else np.zeros((1, 3))
+        lowest = float(np.min((hull @ R.T)[:, 2]))
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = (xy[0], xy[1], self.scene.support_z - lowest + DROP_CLEARANCE_M)
+        self.set_object_pose(name, T)
 
     def _sample_layout(
         self, rng: np.random.Generator
@@ -180,11 +232,16 @@ class World:
             placed: dict[str, tuple[tuple[float, float], float]] = {}
             radius: dict[str, float] = {}
             for spec in specs:
-                r = spec.footprint_radius_m
+                pl = scene.placements.get(spec.name)
+                drop = pl is not None and pl.pose == "drop"
+                r = spec.reach_m if drop else spec.footprint_radius_m
+                (x0, x1) = pl.x if pl is not None and pl.x is not None else (cx - hx, cx + hx)
+                (y0, y1) = pl.y if pl is not None and pl.y is not None else (cy - hy, cy + hy)
+                yaw0, yaw1 = pl.yaw if pl is not None else (-np.pi, np.pi)
                 for _ in range(_MAX_TRIES):
                     xy = (
-                        float(rng.uniform(cx - hx + r, cx + hx - r)),
-                        float(rng.uniform(cy - hy + r, cy + hy - r)),
+                        float(rng.uniform(x0 + r, max(x0 + r, x1 - r))),
+                        float(rng.uniform(y0 + r, max(y0 + r, y1 - r))),
                     )
                     if all(
                         np.hypot(xy[0] - p[0], xy[1] - p[1]) > r + radius[o] + _MIN_GAP_M
@@ -193,7 +250,7 @@ class World:
                         break
                 else:
                     break  # restart the layout
-                placed[spec.name] = (xy, float(rng.uniform(-np.pi, np.pi)))
+                placed[spec.name] = (xy, float(rng.uniform(yaw0, yaw1)))
                 radius[spec.name] = r
             if len(placed) == len(specs):
                 return placed
@@ -226,15 +283,35 @@ class World:
         self.set_object_pose(name, T)
 
 
-def build_world(scene: str, seed: int | None = None) -> World:
-    """Compile scene ``scene``; with a ``seed``, randomise the object poses from it.
+def build_world(
+    scene: str | Path | None = None,
+    seed: int | None = None,
+    *,
+    objects: Sequence[str] = (),
+    models: Sequence[str | Path] = (),
+) -> World:
+    """Compile a scene; with a ``seed``, randomise the object poses from it.
 
-    Without a seed the objects keep the scene's default layout (already at rest).
+    Args:
+        scene: a scene name (``worlds/<name>.toml``) or a scene file; None with ``objects``:
+            the default scene (those database objects alone on the table, dropped from
+            random orientations).
+        seed: randomise the layout from this seed; without one the objects keep the
+            scene's default layout (settled).
+        objects: database object names for the default scene.
+        models: extra model folders (``--models DIR``).
 
     Raises:
-        NotFound: unknown scene name.
+        NotFound: unknown scene or object name.
+        SpecError: neither a scene nor objects, or a malformed scene file.
     """
-    world = World(build_scene(scene))
+    if scene is None:
+        if not objects:
+            raise SpecError("build_world: expected a scene name/file or objects=[...], got neither")
+        spec = default_scene(list(objects), models=models)
+    else:
+        spec = build_scene(scene, models=models)
+    world = World(spec)
     if seed is not None:
         world.randomize(np.random.default_rng(seed))
     else:

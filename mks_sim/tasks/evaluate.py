@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from mks_sim.geometry.transforms import cube_rotations, pose_error
+from mks_sim.geometry.transforms import rotation_angle_deg
 
 MIN_CLEARANCE_M = 0.08
 HOLD_S = 1.0
@@ -54,11 +54,41 @@ def lowest_point_z(model: mujoco.MjModel, data: mujoco.MjData, body: str) -> flo
     return float(zmin)
 
 
-def symmetries_for(object_name: str) -> np.ndarray | None:
-    """Rotations under which the object looks the same (cube: the 24 cube rotations)."""
-    if object_name == "cube":
-        return cube_rotations()
-    return None
+def _object_of(world, object_name: str, models=()):
+    """The database object of body ``object_name`` (a scene may hold copies: ``cube_1``)."""
+    from mks_sim.models.objects import load_object
+
+    scene = getattr(world, "scene", None)
+    db_name = getattr(scene, "models", {}).get(object_name, object_name) if scene else object_name
+    return load_object(db_name, models=models)
+
+
+def symmetries_for(object_name: str, *, models=()) -> np.ndarray | None:
+    """(S, 3, 3) rotations under which database object ``object_name`` looks the same (the
+    cube: its 24 rotations), or None when it has none but the identity."""
+    from mks_sim.models.objects import load_object
+
+    obj = load_object(object_name, models=models)
+    return None if len(obj.symmetries) == 1 else obj.rotations
+
+
+def object_pose_error(obj, estimate: np.ndarray, truth_T: np.ndarray) -> tuple[float, float]:
+    """(position error m, rotation error deg) of ``estimate`` against ``truth_T``, modulo the
+    object's symmetries (object-frame transforms ``S``: ``truth_T @ S`` is as correct); the
+    best equivalent by rotation, then position. 0 degrees for an object whose orientation is
+    not observable (a sphere)."""
+    E = np.asarray(estimate, dtype=float)
+    G = np.asarray(truth_T, dtype=float)
+    if not obj.orientation_observable:
+        return float(np.linalg.norm(E[:3, 3] - G[:3, 3])), 0.0
+    best = (np.inf, np.inf)
+    for S in obj.symmetries:
+        GS = G @ S
+        rot = rotation_angle_deg(E[:3, :3], GS[:3, :3])
+        pos = float(np.linalg.norm(E[:3, 3] - GS[:3, 3]))
+        if (rot, pos) < (best[1], best[0]):
+            best = (pos, rot)
+    return best
 
 
 @dataclass(frozen=True)
@@ -75,15 +105,15 @@ class LocalizationError:
     rotation_deg: float
 
 
-def localization_error(world, object_name: str, estimate: np.ndarray | None) -> LocalizationError:
-    """Compare an estimate with the true pose (nan when there is no estimate)."""
+def localization_error(
+    world, object_name: str, estimate: np.ndarray | None, *, models=()
+) -> LocalizationError:
+    """Compare an estimate with the true pose (nan when there is no estimate), modulo the
+    object's symmetries from the model database (``models``: extra model folders)."""
     if estimate is None:
         return LocalizationError(float("nan"), float("nan"))
     truth_T = true_object_to_world(world, object_name)
-    if object_name == "sphere":
-        pos = float(np.linalg.norm(np.asarray(estimate)[:3, 3] - truth_T[:3, 3]))
-        return LocalizationError(pos * 1000.0, 0.0)
-    pos, rot = pose_error(estimate, truth_T, symmetries=symmetries_for(object_name))
+    pos, rot = object_pose_error(_object_of(world, object_name, models), estimate, truth_T)
     return LocalizationError(float(pos) * 1000.0, float(rot))
 
 

@@ -1,0 +1,95 @@
+"""Scenes are data: worlds/*.toml, the default scene (objects dropped), MJCF export."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from mks_sim.errors import NotFound, SpecError
+from mks_sim.models.objects import load_object
+from mks_sim.sim import names, truth
+from mks_sim.sim.scenes import build_scene, export_scene, scene_names
+from mks_sim.sim.world import build_world
+
+
+def test_shipped_scene_files() -> None:
+    assert {"scene1", "scene2", "part"} <= set(scene_names())
+    for name in names.SCENES:
+        spec = build_scene(name)
+        assert spec.source is not None and spec.source.name == f"{name}.toml"
+    assert build_scene("scene2").models == {"cube": "cube", "sphere": "sphere"}
+
+
+def test_scene_file_path_counts_and_ranges(tmp_path) -> None:
+    f = tmp_path / "two_cubes.toml"
+    f.write_text(
+        '[[object]]\nname = "cube"\ncount = 2\nx = [0.0, 0.15]\ny = [-0.1, 0.1]\nyaw = [0, 0]\n',
+        encoding="utf-8",
+    )
+    w = build_world(str(f), seed=4)
+    assert w.object_names == ("cube", "cube_1")
+    for n in w.object_names:
+        T = truth.object_to_world(w, n)
+        # the footprint (radius 25 mm x sqrt 2) inside the ranges
+        assert 0.035 <= T[0, 3] <= 0.115 and -0.065 <= T[1, 3] <= 0.065
+        assert T[2, 3] == pytest.approx(names.TABLE_TOP_Z + 0.025, abs=1.5e-3)
+        # yaw range [0, 0]: the cube's axes stay aligned with the world's
+        assert abs(T[0, 0]) > 0.999
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ('[[object]]\nname = "cube"\ncolour = 1\n', "unknown field.*colour"),
+        ('[[object]]\nname = "cube"\npose = "flying"\n', "field 'pose'"),
+        ('[[object]]\nname = "cube"\ncount = 0\n', "field 'count'"),
+        ('[[object]]\nname = "sphere"\non = "cube"\n', "field 'on'"),
+        ('[[clutter]]\nshape = "cone"\nsize = [1, 2]\n', "field 'shape'"),
+        ("[scene]\n", "at least one"),
+    ],
+)
+def test_bad_scene_files(tmp_path, text: str, match: str) -> None:
+    f = tmp_path / "bad.toml"
+    f.write_text(text, encoding="utf-8")
+    with pytest.raises(SpecError, match=match):
+        build_scene(str(f))
+
+
+def test_unknown_scene_and_object(tmp_path) -> None:
+    with pytest.raises(NotFound, match="unknown scene 'nope'.*scene2"):
+        build_scene("nope")
+    f = tmp_path / "s.toml"
+    f.write_text('[[object]]\nname = "teapot"\n', encoding="utf-8")
+    with pytest.raises(NotFound, match="teapot.*known objects"):
+        build_scene(str(f))
+
+
+@pytest.mark.slow
+def test_default_scene_drops_onto_stable_faces() -> None:
+    """The part alone, dropped from random orientations: at rest on the table (its lowest
+    point there, not moving) and not always on the same face."""
+    part = load_object("part")
+    up = set()
+    for seed in range(6):
+        w = build_world(objects=["part"], seed=seed)
+        T = truth.object_to_world(w, "part")
+        lowest = (part.mesh.vertices @ T[:3, :3].T + T[:3, 3])[:, 2].min()
+        assert lowest == pytest.approx(names.TABLE_TOP_Z, abs=1.5e-3)
+        cx, cy = names.OBJECT_REGION_CENTER_XY
+        hx, hy = names.OBJECT_REGION_HALF_XY
+        assert abs(T[0, 3] - cx) < hx + 0.02 and abs(T[1, 3] - cy) < hy + 0.02
+        before = T[:3, 3].copy()
+        w.step(250)
+        assert np.linalg.norm(truth.object_to_world(w, "part")[:3, 3] - before) < 1e-3
+        up.add(tuple(np.round(T[:3, :3].T @ [0, 0, 1.0], 1)))  # world up in the part frame
+    assert len(up) >= 2
+
+
+def test_export_loads_in_mujoco(tmp_path) -> None:
+    xml = export_scene("part", tmp_path / "part")
+    m = mujoco.MjModel.from_xml_path(str(xml))
+    assert m.body("part").id > 0 and m.camera(names.OVERHEAD_CAMERA).id >= 0
+    # the exported part carries the database density (1200 kg/m^3) on its exact mesh volume
+    part = load_object("part")
+    assert m.body_mass[m.body("part").id] == pytest.approx(1200.0 * part.mesh.volume, rel=0.02)
