@@ -28,11 +28,12 @@ import numpy as np
 
 from mks_sim.errors import DataError, DeviceFailure, MksError, NotFound, SensorFailure
 from mks_sim.models.objects import ObjectModel, load_object
-from mks_sim.sim import names
+from mks_sim.sim import names, truth
 from mks_sim.tasks.controller import ArmHandController, RobotNames
 from mks_sim.tasks.evaluate import HOLD_S, HoldMonitor, localization_error
 from mks_sim.tasks.grasp import GraspPlan, synthesize_grasps
 from mks_sim.tasks.spec import TaskSpec, task_for_object
+from mks_sim.viz import NullRecorder, Recorder
 
 logger = logging.getLogger(__name__)
 
@@ -318,6 +319,8 @@ class EpisodeAssembly:
         resense_period_s: re-sense at least this often (simulated seconds) during the
             approach until the fingers close; None disables re-sensing.
         models: extra model-database folders (``--models DIR``).
+        recorder: logs devices, localizations, grasps, touch and the arm (``mks_sim.viz``;
+            default off).
     """
 
     def __init__(
@@ -328,7 +331,9 @@ class EpisodeAssembly:
         localize_fn: LocalizeFn | None = None,
         resense_period_s: float | None = RESENSE_PERIOD_S,
         models: Iterable[str] = (),
+        recorder: Recorder | None = None,
     ) -> None:
+        self.recorder: Recorder = recorder if recorder is not None else NullRecorder()
         self.task = task
         self.faults = tuple(faults)
         self.obj = load_object(task.object, models=tuple(models))
@@ -387,10 +392,18 @@ class EpisodeAssembly:
             self._own_devices = True
         self._rng = np.random.default_rng(rng.integers(2**63))
         self.devices = devices
-        self.localize_fn = self._localize_override or sensor_localize_fn(devices)
-        self.scene_points_fn = make_scene_points_fn(devices)
+        rec = self.recorder
+        rec.log_world(world)
+        sensed = rec.tap_devices(devices)  # the devices themselves when not recording
+        self.localize_fn = self._localize_override or sensor_localize_fn(
+            sensed, graph=rec.tap_graph(None),
+            on_result=(lambda r: rec.log_localization(r, world=world)) if rec.enabled else None,
+        )  # fmt: skip
+        self.scene_points_fn = make_scene_points_fn(sensed)
+        if rec.enabled:
+            on_frame = _also(on_frame, lambda: rec.log_robot(world))
         ctl = ArmHandController(world.physics, RobotNames.from_model(world.model),
-                                make_touch_reader(devices), on_frame=on_frame,
+                                make_touch_reader(sensed), on_frame=on_frame,
                                 frame_every=frame_every)  # fmt: skip
         ctl.after_step = self.after_step
         self.controller = ctl
@@ -415,7 +428,7 @@ class EpisodeAssembly:
         if ctl.time - self._last_sensed < self.resense_period_s - 1e-9:
             return False
         self._last_sensed = ctl.time
-        est = self._localize()
+        est = self.localize()
         if est is None or self.estimate is None:
             self.relocalizations.append(Relocalization(ctl.time, False, math.nan, math.nan, False))
             self._note(f"t={ctl.time:.2f} s: re-sensing found nothing")
@@ -445,12 +458,21 @@ class EpisodeAssembly:
     def _note(self, msg: str) -> None:
         logger.debug("%s: %s", self.task.object, msg)
         self.log.append(msg)
+        self.recorder.log_text(f"{self.task.object}: {msg}")
 
-    def _localize(self) -> np.ndarray | None:
+    def localize(self) -> np.ndarray | None:
+        """One sensor-based localization of the task's object (None when not found)."""
         assert self.localize_fn is not None
         est = self.localize_fn(self.world, self.task.object)
         if self.on_localized is not None:
             self.on_localized(est)
+        return est
+
+    def sense(self) -> np.ndarray | None:
+        """Localize and track the result as :attr:`estimate` (what an env's ``reset`` and
+        re-sensing steps call); its error is recorded in :attr:`errors`."""
+        est = self.localize()
+        self._adopt(est)
         return est
 
     def _adopt(self, est: np.ndarray | None) -> None:
@@ -459,6 +481,9 @@ class EpisodeAssembly:
         self.estimate = est
         e = localization_error(self.world, self.task.object, est)
         self.errors.append((e.position_mm, e.rotation_deg))
+        if self.recorder.enabled:  # evaluation only: the truth on its own entity path
+            T_true = truth.object_to_world(self.world, self.task.object)
+            self.recorder.log_truth(self.task.object, T_true, world=self.world)
 
     def plans(self, est: np.ndarray) -> list[GraspPlan]:
         """Executable grasps for the estimate ``est``, best first."""
@@ -469,6 +494,7 @@ class EpisodeAssembly:
                                         object_radius_m(self.obj) + 0.012, names.TABLE_TOP_Z)  # fmt: skip
         cands = synthesize_grasps(self.obj, est, table_z=names.TABLE_TOP_Z, obstacles=obstacles,
                                   rng=self._rng, preferred_yaw=self.controller.pinch_yaw())  # fmt: skip
+        self.recorder.log_grasps(cands)
         return [c.plan(self.task.action) for c in cands]
 
     def _retreat(self) -> None:
@@ -519,7 +545,7 @@ class EpisodeAssembly:
         """One sense-plan-grasp-lift-verify cycle. Returns (believed success, reason)."""
         ctl = self.controller
         assert ctl is not None
-        est = self._localize()
+        est = self.localize()
         self._adopt(est)
         self._last_sensed = ctl.time
         if est is None:
@@ -541,6 +567,7 @@ class EpisodeAssembly:
         else:
             return False, reason
         assert self.estimate is not None
+        self.recorder.log_grasps((), plan)
         self._note(_describe(plan, self.estimate))
         closed = ctl.close(threshold=TOUCH_THRESHOLD_N, yaw=plan.yaw_rad)
         a, b = closed.sides(TOUCH_THRESHOLD_N)
@@ -555,7 +582,7 @@ class EpisodeAssembly:
         t = np.nan_to_num(ctl.touch(), nan=-1.0)
         if not (t[0] > TOUCH_THRESHOLD_N and max(t[1], t[2]) > TOUCH_THRESHOLD_N):
             return False, "contact lost while lifting"
-        again = self._localize()
+        again = self.localize()
         if again is not None and again[2, 3] - z0 < 0.5 * act.lift_height_m:
             return False, f"re-sensed object only {1000 * (again[2, 3] - z0):.0f} mm higher"
         return True, "held (touch" + (
@@ -567,6 +594,7 @@ class EpisodeAssembly:
         reason = ""
         retries = self.task.action.retries
         for k in range(retries + 1):
+            self.recorder.set_episode(None, k + 1)
             if self.monitor is not None:
                 self.monitor.samples.clear()
             ok, reason = self.attempt()
@@ -602,6 +630,7 @@ def run_episode(
     setup: Callable[[Any], None] | None = None,
     resense_period_s: float | None = RESENSE_PERIOD_S,
     on_localized: Callable[[Any, np.ndarray | None], None] | None = None,
+    recorder: Recorder | None = None,
 ) -> EpisodeResult:
     """Run one grasp episode from ``seed`` (deterministic).
 
@@ -620,6 +649,8 @@ def run_episode(
         resense_period_s: re-sensing period during the approach (None: never).
         on_localized: called with (world, estimate) after every localization (tests use it
             to push the object through the simulator).
+        recorder: records the episode on the ``episode`` (= seed) and ``attempt`` timelines
+            (``mks_sim.viz``; default off).
 
     Raises:
         NotFound: unknown object / task.
@@ -633,7 +664,8 @@ def run_episode(
     if setup is not None:
         setup(world)
     episode = EpisodeAssembly(task, faults=faults, localize_fn=localize_fn,
-                              resense_period_s=resense_period_s)  # fmt: skip
+                              resense_period_s=resense_period_s, recorder=recorder)  # fmt: skip
+    episode.recorder.set_episode(seed, 1)
     renderer = None
     try:
         on_frame = None
@@ -668,6 +700,17 @@ def run_episode(
         if renderer is not None:
             renderer.close()
         episode.close()
+
+
+def _also(first: Callable[[], None] | None, then: Callable[[], None]) -> Callable[[], None]:
+    """A hook calling ``first`` (when given), then ``then``."""
+
+    def hook() -> None:
+        if first is not None:
+            first()
+        then()
+
+    return hook
 
 
 def _frame_hook(world: Any, sink: FrameSink, size: tuple[int, int]):
