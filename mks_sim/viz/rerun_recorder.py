@@ -47,6 +47,10 @@ _CURVED = (214, 39, 40)
 _CHOSEN = (0, 200, 0)
 _TRUTH = (255, 215, 0)
 _HYPOTHESIS = (150, 150, 150)
+# Re-sensing every 0.2 s during an approach would redraw the SPG and segmentation each time
+# (~1 MB of edges per snapshot, ~0.5 s of grouping): drawn at most this often (sim seconds),
+# and for the first snapshot of every episode / attempt.
+GROUPING_PERIOD_S = 1.0
 # Self-hit rays have no range (the device reports none): drawn this long from the mount.
 _SELF_HIT_RAY_M = 0.1
 _LEVELS = {"INFO": rr.TextLogLevel.INFO, "WARN": rr.TextLogLevel.WARN,
@@ -83,6 +87,7 @@ class RerunRecorder:
         self._devices: dict[str, DeviceTap] = {}
         self._read: set[str] = set()
         self._stereo: dict[str, Any] = {}
+        self._last_grouping = -np.inf
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
     # ------------------------------------------------------------------ timelines
@@ -92,6 +97,7 @@ class RerunRecorder:
         self.rec.set_time("sim_time", duration=self._time)
 
     def set_episode(self, episode: int | None, attempt: int | None = None) -> None:
+        self._last_grouping = -np.inf
         if episode is not None:
             self.rec.set_time("episode", sequence=int(episode))
         if attempt is not None:
@@ -251,7 +257,11 @@ class RerunRecorder:
             except MksError:
                 continue
             self._log_stream(sensor, stream, served)
-        if "Range_Points" in snap.provenance:
+        if (
+            "Range_Points" in snap.provenance
+            and self._time - self._last_grouping >= GROUPING_PERIOD_S - 1e-9
+        ):
+            self._last_grouping = self._time
             pts = np.asarray(snap.get("Range_Points").data, dtype=float)[:, :3]
             self._log_grouping(pts[np.all(np.isfinite(pts), axis=1)])
 
@@ -296,7 +306,11 @@ class RerunRecorder:
             cloud = points[idx]
             spg = SpatialProximityGraph(cloud, m=8)
             A = spg.adjacency.tocoo()
-            segs.append(np.stack([cloud[A.row], cloud[A.col]], axis=1))
+            one = A.row < A.col  # each undirected edge once (the directed graph has both)
+            rows = np.r_[A.row[one], A.col[~one]]
+            cols = np.r_[A.col[one], A.row[~one]]
+            edges = np.unique(np.c_[rows, cols], axis=0)
+            segs.append(np.stack([cloud[edges[:, 0]], cloud[edges[:, 1]]], axis=1))
             try:
                 seg = segment_surfaces(cloud, spg)
             except MksError as exc:
@@ -463,16 +477,18 @@ class RerunRecorder:
     # ------------------------------------------------------------------ grasp
 
     def log_grasps(self, candidates: Sequence[Any], chosen: Any = None) -> None:
-        pts, labels, quality = [], [], []
+        pts, labels, quality, contacts = [], [], [], []
         for k, c in enumerate(candidates):
             p = _grasp_point(c)
             if p is None:
                 continue
-            q = getattr(c, "quality", None)
-            q = float(q) if q is not None else 1.0 / (k + 1)  # rank when there is no quality
+            q = _quality(c, k)
             pts.append(p)
             quality.append(q)
-            labels.append(f"#{k} quality {q:.3f}")
+            labels.append(f"#{k} quality {q:.3f}"
+                          + (f" cost {c.cost:.4f}" if hasattr(c, "cost") else ""))  # fmt: skip
+            if hasattr(c, "contacts_world"):
+                contacts.append(np.asarray(c.contacts_world, dtype=float))
         if pts:
             qs = np.asarray(quality)
             s = (qs - qs.min()) / max(float(np.ptp(qs)), 1e-12)
@@ -480,6 +496,9 @@ class RerunRecorder:
             self.rec.log("world/grasp/candidates",
                          rr.Points3D(pts, colors=colors, radii=0.003, labels=labels))  # fmt: skip
             self.rec.log("grasp/best_quality", rr.Scalars(float(qs.max())))
+        if contacts:
+            self.rec.log("world/grasp/contacts",
+                         rr.LineStrips3D(contacts, radii=0.0005, colors=(0, 120, 255)))  # fmt: skip
         p = _grasp_point(chosen) if chosen is not None else None
         if p is not None:
             self.rec.log("world/grasp/chosen", rr.Points3D([p], colors=_CHOSEN, radii=0.005,
@@ -502,8 +521,18 @@ class RerunRecorder:
         self.close()
 
 
+def _quality(c: Any, rank: int) -> float:
+    """A candidate's quality: its own ``quality``, else its antipodality (1 = perfect),
+    else its rank (1, 1/2, 1/3, ...)."""
+    for attr in ("quality", "antipodal"):
+        q = getattr(c, attr, None)
+        if q is not None:
+            return float(q)
+    return 1.0 / (rank + 1)
+
+
 def _grasp_point(c: Any) -> np.ndarray | None:
-    for attr in ("grasp_point_world", "position_world", "point_world"):
+    for attr in ("grasp_point_world", "pinch_world", "position_world", "point_world"):
         if hasattr(c, attr):
             return np.asarray(getattr(c, attr), dtype=float)[:3]
     T = as_matrix(getattr(c, "grasp_to_world", None))
