@@ -19,6 +19,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import time
 from collections.abc import Sequence
@@ -142,7 +143,9 @@ def run_trial(
     failure: str | None = None
     t0 = time.perf_counter()
     try:
-        extra: dict[str, Any] = {"models": tuple(models)} if models else {}
+        # extra model folders, once the engine's localize_object takes them
+        takes_models = "models" in inspect.signature(localize_object).parameters
+        extra: dict[str, Any] = {"models": tuple(models)} if models and takes_models else {}
         result = localize_object(
             world, obj, rec.tap_devices(devices), rng=np.random.default_rng(seed),
             graph=rec.tap_graph(None), **extra,

@@ -156,7 +156,7 @@ def draw_object(obj: Any, path: Path) -> None:
 
     def draw(ax: Any, V: np.ndarray, title: str) -> None:
         ax.add_collection3d(
-            Poly3DCollection(V[mesh.faces], facecolor=obj.rgb, edgecolor=(0, 0, 0, 0.15), lw=0.2)
+            Poly3DCollection(V[mesh.faces], facecolor=(*obj.rgb, 0.35), edgecolor=(0, 0, 0, 0.1), lw=0.2)
         )
         lo, hi = V.min(axis=0), V.max(axis=0)
         c, r = (lo + hi) / 2, float(np.max(hi - lo)) / 2
@@ -172,8 +172,11 @@ def draw_object(obj: Any, path: Path) -> None:
     ax.scatter(*pts.T, s=6, c="crimson", depthshade=False, label=label)
     grasps = _grasp_points(obj)
     if grasps is not None:
-        for a, b in grasps:
-            ax.plot(*np.stack([a, b]).T, c="green", lw=0.8)
+        for k, (a, b) in enumerate(grasps):
+            ax.plot(
+                *np.stack([a, b]).T, c="green", lw=0.8, label="grasp contacts" if k == 0 else None
+            )
+            ax.scatter(*np.stack([a, b]).T, s=10, c="green", depthshade=False)
     ax.legend(fontsize=6, loc="upper left")
     for i, (T, area) in enumerate(poses):
         V = mesh.vertices @ T[:3, :3].T + T[:3, 3]
@@ -204,7 +207,7 @@ def _feature_points(obj: Any) -> tuple[np.ndarray, str]:
 def _grasp_points(obj: Any) -> list[tuple[np.ndarray, np.ndarray]] | None:
     """Contact pairs of synthesised grasps at the object's first resting pose, body frame."""
     try:
-        from mks_sim.tasks.grasp import synthesize_grasps  # type: ignore[attr-defined]
+        from mks_sim.tasks.grasp import synthesize_grasps
     except ImportError:
         return None
     try:
@@ -217,7 +220,7 @@ def _grasp_points(obj: Any) -> list[tuple[np.ndarray, np.ndarray]] | None:
     out = []
     Tinv = np.linalg.inv(T)
     for c in cands[:12]:
-        pair = getattr(c, "contacts", None)
+        pair = getattr(c, "contacts_world", None)
         if pair is None:
             continue
         a, b = (Tinv[:3, :3] @ np.asarray(p) + Tinv[:3, 3] for p in pair)
