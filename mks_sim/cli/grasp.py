@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from mks_sim.cli import output_file
 from mks_sim.errors import MksError
 from mks_sim.tasks.backends import BACKENDS, EpisodeJob, check_backend
+from mks_sim.viz import add_rerun_argument, open_recorder
 
 HELP = "grasp an object with the Jaco hand from sensor-based localization (episodes, JSON, video)"
 
@@ -28,6 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print JSON to stdout")
     parser.add_argument("--video", metavar="FILE", help="write the first episode as MP4/GIF")
+    add_rerun_argument(parser)  # recorded episodes run in this process, one after the other
     parser.add_argument(
         "--backend", choices=BACKENDS, default="local",
         help="where episodes run: local processes (--workers) or Ray tasks (the 'ray' extra)",
@@ -107,6 +109,15 @@ def run(args: argparse.Namespace) -> int:
         )  # fmt: skip
         print(f"recorded {len(episodes)} episode(s) as the Minari dataset {args.record}",
               file=sys.stderr)  # fmt: skip
+    elif args.rerun is not None:  # one recording: the episodes run here, in seed order
+        shots: list = []
+        with open_recorder(args.rerun, "mks_sim grasp") as recorder:
+            results = [run_episode(args.object, s, faults, recorder=recorder,
+                                   frame_sink=shots.append if args.video and s == seeds[0]
+                                   else None) for s in seeds]  # fmt: skip
+        if args.video:
+            print(f"video of seed {seeds[0]}: {write_video(shots, args.video)}", file=sys.stderr)
+        episodes = [r.to_json() for r in results]
     elif args.video:
         frames: list = []
         first = run_episode(args.object, seeds[0], faults, frame_sink=frames.append)
