@@ -127,10 +127,13 @@ def test_cli_record_writes_a_dataset(tmp_path: Path, capsys) -> None:
     import json
 
     folder = tmp_path / "grasp-sphere-v3"
-    assert main(["grasp", "--object", "sphere", "--seed", "4", "--record", str(folder),
-                 "--max-steps", "5", "--json"]) == 0  # fmt: skip
+    # Two spawn-started workers: the episode buffers come back from other processes. Five
+    # steps never lift the sphere: exit 1 (an episode failed), the dataset is written anyway.
+    assert main(["grasp", "--object", "sphere", "--seed", "4", "--episodes", "2",
+                 "--workers", "2", "--record", str(folder), "--max-steps", "5", "--json"]) == 1  # fmt: skip
     doc = json.loads(capsys.readouterr().out)
-    assert [e["seed"] for e in doc["episodes"]] == [4]
+    assert [e["seed"] for e in doc["episodes"]] == [4, 5]
     ds = load_recorded(folder)
-    assert ds.total_episodes == 1 and ds.total_steps == 5
+    assert ds.total_episodes == 2 and ds.total_steps == 10
     assert ds.storage.metadata["dataset_id"] == "grasp-sphere-v3"
+    assert [m["seed"] for m in ds.storage.get_episode_metadata([0, 1])] == [4, 5]
