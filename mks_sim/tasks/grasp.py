@@ -334,25 +334,21 @@ def synthesize_grasps(
     top = _reaches_top(mesh, R, t, p_world, n_world)
     p_world, n_world = p_world[top], n_world[top]
 
-    # Pairs (i, j): i = fingers 2/3 side, j = finger 1 side, closing axis d from i to j.
-    D = p_world[None, :, :] - p_world[:, None, :]  # (m, m, 3)
-    width = np.hypot(D[..., 0], D[..., 1])
-    d = D[..., :2] / np.maximum(width, 1e-12)[..., None]  # (m, m, 2) horizontal unit
-    a_i = -np.einsum("ijk,ik->ij", d, n_world[:, :2])  # inward normal at i along +d
-    a_j = np.einsum("ijk,jk->ij", d, n_world[:, :2])  # inward normal at j along -d
-    ok = (
-        (np.abs(D[..., 2]) <= PAIR_DZ_M)
-        & (width >= MIN_WIDTH_M)
-        & (width <= MAX_WIDTH_M)
-        & (a_i >= cos_cone)
-        & (a_j >= cos_cone)
-    )
-    ii, jj = np.nonzero(ok)
+    # Pairs (i, j): i = fingers 2/3 side, j = finger 1 side, closing axis d from i to j;
+    # the height test first, as it leaves few of the m^2 pairs.
+    ii, jj = np.nonzero(np.abs(p_world[None, :, 2] - p_world[:, None, 2]) <= PAIR_DZ_M)
+    D = p_world[jj, :2] - p_world[ii, :2]  # (P, 2)
+    w = np.hypot(D[:, 0], D[:, 1])
+    d = D / np.maximum(w, 1e-12)[:, None]  # horizontal unit
+    a_i = -np.einsum("pk,pk->p", d, n_world[ii, :2])  # inward normal at i along +d
+    a_j = np.einsum("pk,pk->p", d, n_world[jj, :2])  # inward normal at j along -d
+    ok = (w >= MIN_WIDTH_M) & (w <= MAX_WIDTH_M) & (a_i >= cos_cone) & (a_j >= cos_cone)
+    ii, jj, d, a_i, a_j, pair_width = ii[ok], jj[ok], d[ok], a_i[ok], a_j[ok], w[ok]
     if len(ii) == 0:
         return []
-    antipodal = np.minimum(a_i[ii, jj], a_j[ii, jj])
+    antipodal = np.minimum(a_i, a_j)
     mid = 0.5 * (p_world[ii] + p_world[jj])  # pad-centre line midpoint
-    axis = np.column_stack([d[ii, jj], np.zeros(len(ii))])
+    axis = np.column_stack([d, np.zeros(len(ii))])
     com = R @ mesh.centroid + t
     rel = com - mid
     com_dist = np.linalg.norm(rel - np.sum(rel * axis, axis=1)[:, None] * axis, axis=1)
@@ -365,7 +361,7 @@ def synthesize_grasps(
     f1 = np.concatenate([jj, ii])  # finger 1's contact
     f23 = np.concatenate([ii, jj])  # fingers 2/3's contact
     pinch = mid[src] + np.array([0.0, 0.0, PAD_CENTRE_BELOW_M])
-    aperture = width[ii, jj][src] + PRESHAPE_MARGIN_M
+    aperture = pair_width[src] + PRESHAPE_MARGIN_M
     own = dense[:: max(1, len(dense) // 2000)] @ R.T + t  # (<= 4000, 3)
     own = own[own[:, 2] > table_z + 0.002]
     obs = np.zeros((0, 3))
@@ -375,22 +371,22 @@ def synthesize_grasps(
     # The costly checks run on distinct candidates, cheapest first, a batch at a time.
     order = _distinct(np.arange(2 * K), pinch, yaw, cost[src], 2 * K)
     kept: list[int] = []
-    batch = 6 * max_candidates
-    for start in range(0, len(order), batch):
+    start, batch = 0, 2 * max_candidates
+    while start < len(order) and len(kept) < max_candidates:
         b = order[start : start + batch]
-        ok = _pads_supported(mesh, R, t, p_world, n_world, f1[b], f23[b], yaw[b])
+        start, batch = start + batch, 2 * batch  # few batches when most candidates fail
         tips = _tips_world(pinch[b], yaw[b], aperture[b])
-        ok &= _tip_hits(tips, pinch[b, 2], own, SELF_CLEARANCE_M) == 0
+        ok = _tip_hits(tips, pinch[b, 2], own, SELF_CLEARANCE_M) == 0
         ok &= _tip_hits(tips, pinch[b, 2], obs, FINGER_CLEARANCE_M) == 0
+        b = b[ok]
+        ok = _pads_supported(mesh, R, t, p_world, n_world, f1[b], f23[b], yaw[b])
         kept.extend(int(k) for k in b[ok])
-        if len(kept) >= max_candidates:
-            break
     sel = kept[:max_candidates]
     out = [
         GraspCandidate(
             pinch_world=tuple(float(v) for v in pinch[k]),  # type: ignore[arg-type]
             yaw_rad=float(preferred_yaw + wrap_angle(yaw[k] - preferred_yaw)),
-            width_m=float(width[f23[k], f1[k]]),
+            width_m=float(pair_width[src[k]]),
             contacts_world=(tuple(map(float, p_world[f23[k]])), tuple(map(float, p_world[f1[k]]))),  # type: ignore[arg-type]
             normals_world=(tuple(map(float, n_world[f23[k]])), tuple(map(float, n_world[f1[k]]))),  # type: ignore[arg-type]
             antipodal=float(antipodal[src[k]]),
@@ -419,19 +415,22 @@ def _pads_supported(
     across = np.column_stack([np.sin(yaw), -np.cos(yaw), np.zeros(len(yaw))])  # pinch-site y
     axis = np.column_stack([np.cos(yaw), np.sin(yaw), np.zeros(len(yaw))])  # pinch-site x
     up = np.array([0.0, 0.0, PAD_TOP_ABOVE_CENTRE_M + PAD_TOP_MARGIN_M])
-    depths = PAD_DEPTHS_M  # (D,) the pad meets the surface closing more or less far
-
-    def on_surface(contact: np.ndarray, inward: np.ndarray) -> np.ndarray:
-        centre = p_world[contact]  # (K, 3)
-        side = PAD_HALF_WIDTH_M * across
-        corners = [centre, centre - side, centre + side]
-        probes = np.stack(corners + [c + up for c in corners])  # (6, K, 3)
-        probes = probes[None] + depths[:, None, None, None] * inward  # (D, 6, K, 3)
-        normals = np.broadcast_to(n_world[contact], probes.shape)
-        hit = _supported((probes.reshape(-1, 3) - t) @ R, normals.reshape(-1, 3) @ R, mesh)
-        return np.all(np.any(hit.reshape(probes.shape[:3]), axis=0), axis=0)
-
-    return on_surface(f1, -axis) & on_surface(f23, axis)
+    side = PAD_HALF_WIDTH_M * across  # (K, 3)
+    # The pad's six points, the most discriminating first (its top edge); each is tested
+    # only for the candidates that passed the ones before.
+    offsets = [up + 0.0 * side, up - side, up + side, 0.0 * side, -side, side]
+    alive = np.ones(len(yaw), dtype=bool)
+    for contact, inward in ((f1, -axis), (f23, axis)):
+        for offset in offsets:
+            k = np.flatnonzero(alive)
+            if len(k) == 0:
+                return alive
+            probe = p_world[contact[k]] + offset[k]  # (k, 3)
+            probes = probe[None] + PAD_DEPTHS_M[:, None, None] * inward[k][None]  # (D, k, 3)
+            normals = np.broadcast_to(n_world[contact[k]], probes.shape)
+            hit = _supported((probes.reshape(-1, 3) - t) @ R, normals.reshape(-1, 3) @ R, mesh)
+            alive[k] = np.any(hit.reshape(probes.shape[:2]), axis=0)
+    return alive
 
 
 def _reaches_top(
