@@ -10,7 +10,8 @@ A task file (``tasks/*.toml``) holds one or more ``[[task]]`` entries::
     remove = ["sphere"]       # optional: objects taken off the table at set-up (scene 2's
                               # sphere sits on the cube; the demo grasps it away instead)
     model = "cube_5cm"        # an entry of the model database (tasks/models/)
-    matcher = "rotinv"        # how the model is matched (see docs/grasp.md)
+    matcher = "polyhedral"    # optional: the localization kind, one of the object's kinds
+                              # in the model database (default: its first kind)
 
     [task.action]             # what the task does with the localization
     kind = "grasp"
@@ -35,7 +36,8 @@ from mks_sim.resources import data_dir
 
 GRASP_TYPES = ("antipodal",)
 ACTION_KINDS = ("grasp",)
-MATCHERS = ("rotinv", "hough3d", "feature", "freeform", "icp")
+#: Localization kinds a task's ``matcher`` may name (each object lists its own).
+MATCHERS = ("polyhedral", "rotinv", "sphere", "freeform")
 
 
 @dataclass(frozen=True)
@@ -66,7 +68,8 @@ class TaskSpec:
         scene: world scene name (``mks_sim.sim.build_world``).
         object: name of the object in that world.
         model: model database entry to localize.
-        matcher: matcher to use for ``model``.
+        matcher: the localization kind (one of the object's ``kinds`` in the model
+            database; its first kind when the file names none).
         action: what to do with the localization.
         description: free text.
         source: the file the task came from.
@@ -172,9 +175,15 @@ def parse_task(raw: Any, path: Path | str = "<string>", index: int = 0) -> TaskS
             path, entry, sorted(unknown)[0], f"unknown key; expected one of {sorted(_TASK_KEYS)}"
         )
     name = _get_str(raw, "name", path, entry)
-    matcher = _get_str(raw, "matcher", path, entry)
-    if matcher not in MATCHERS:
-        raise _err(path, entry, "matcher", f"expected one of {MATCHERS}, got {matcher!r}")
+    obj_name = _get_str(raw, "object", path, entry)
+    from mks_sim.models.objects import load_object
+
+    kinds = load_object(obj_name).kinds  # NotFound lists the database's objects
+    matcher = _get_str(raw, "matcher", path, entry) if "matcher" in raw else kinds[0]
+    if matcher not in kinds:
+        raise _err(
+            path, entry, "matcher", f"expected one of object {obj_name!r}'s kinds {list(kinds)}, got {matcher!r}"
+        )
     description = raw.get("description", "")
     if not isinstance(description, str):
         raise _err(path, entry, "description", f"expected a string, got {description!r}")
@@ -186,7 +195,7 @@ def parse_task(raw: Any, path: Path | str = "<string>", index: int = 0) -> TaskS
     return TaskSpec(
         name=name,
         scene=_get_str(raw, "scene", path, entry),
-        object=_get_str(raw, "object", path, entry),
+        object=obj_name,
         model=_get_str(raw, "model", path, entry),
         matcher=matcher,
         action=_parse_action(raw["action"], path, entry),
