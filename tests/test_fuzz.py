@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mks_sim.errors import MksError
@@ -310,13 +310,7 @@ def test_task_loader(data: st.DataObject) -> None:
         clean(lambda: load_task_file(path))
 
 
-@pytest.mark.xfail(
-    raises=(TypeError, AttributeError, ValueError),
-    strict=False,
-    reason="sim/scenes.py (objects room): a non-table where a table is expected, e.g. "
-    "`scene = 0`, raises TypeError instead of a SpecError; reported to the lead",
-)
-@settings(FUZZ, phases=[Phase.explicit, Phase.generate])  # no shrinking of the known failure
+@FUZZ
 @given(data=st.data())
 def test_scene_loader(data: st.DataObject) -> None:
     from mks_sim.sim.scenes import load_scene_file
