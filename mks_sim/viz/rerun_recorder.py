@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 import rerun as rr
 
+from mks_sim import workstation
 from mks_sim.cli.snapshot import disparity
 from mks_sim.devices.camera import Camera
 from mks_sim.errors import MksError
@@ -262,8 +263,7 @@ class RerunRecorder:
             and self._time - self._last_grouping >= GROUPING_PERIOD_S - 1e-9
         ):
             self._last_grouping = self._time
-            pts = np.asarray(snap.get("Range_Points").data, dtype=float)[:, :3]
-            self._log_grouping(pts[np.all(np.isfinite(pts), axis=1)])
+            self._log_grouping(snap)
 
     def _log_stream(self, sensor: str, stream: Any, served: str) -> None:
         names_ = list(stream.vector.names)
@@ -294,27 +294,23 @@ class RerunRecorder:
                         labels=None if big else [f"{sensor} ({served})"] * len(xyz)),
         )  # fmt: skip
 
-    def _log_grouping(self, points: np.ndarray) -> None:
-        """SPG edges and the segmentation (planar/curved, per region) of each object cloud."""
+    def _log_grouping(self, snap: Any) -> None:
+        """SPG edges and the segmentation (planar/curved, per region) of the object points:
+        the localization's own representation when the snapshot holds one (cached: nothing is
+        rebuilt), else rebuilt for display from ``Range_Points``."""
+        clouds = self._engine_grouping(snap)
+        if clouds is None:
+            pts = np.asarray(snap.get("Range_Points").data, dtype=float)[:, :3]
+            clouds = _rebuilt_grouping(pts[np.all(np.isfinite(pts), axis=1)])
         segs: list[np.ndarray] = []
         region_pts: list[np.ndarray] = []
         region_ids: list[np.ndarray] = []
         kind_colors: list[np.ndarray] = []
         normals: list[np.ndarray] = []
         next_id = 1
-        for idx in object_clouds(points, names.TABLE_TOP_Z):
-            cloud = points[idx]
-            spg = SpatialProximityGraph(cloud, m=8)
-            A = spg.adjacency.tocoo()
-            one = A.row < A.col  # each undirected edge once (the directed graph has both)
-            rows = np.r_[A.row[one], A.col[~one]]
-            cols = np.r_[A.col[one], A.row[~one]]
-            edges = np.unique(np.c_[rows, cols], axis=0)
+        for cloud, edges, seg in clouds:
             segs.append(np.stack([cloud[edges[:, 0]], cloud[edges[:, 1]]], axis=1))
-            try:
-                seg = segment_surfaces(cloud, spg)
-            except MksError as exc:
-                log.debug("segmentation: %s", exc)
+            if seg is None:
                 continue
             ids = np.zeros(len(cloud), dtype=np.int64)
             for region_idx in [r.indices for r in seg.planes] + [r.indices for r in seg.curved]:
@@ -322,7 +318,7 @@ class RerunRecorder:
                 next_id += 1
             region_pts.append(cloud)
             region_ids.append(ids)
-            kind_colors.append(np.where((seg.codes < 0)[:, None], _PLANAR, _CURVED))
+            kind_colors.append(np.where((np.asarray(seg.codes) < 0)[:, None], _PLANAR, _CURVED))
             if self.spec.normals:
                 normals.append(np.c_[cloud, 0.01 * np.asarray(seg.normals)])
         if segs:
@@ -343,6 +339,23 @@ class RerunRecorder:
             n = np.concatenate(normals)
             self.rec.log("world/segmentation/normals", rr.Arrows3D(origins=n[:, :3],
                                                                    vectors=n[:, 3:]))  # fmt: skip
+
+    def _engine_grouping(self, snap: Any) -> list[tuple[np.ndarray, np.ndarray, Any]] | None:
+        """[(object points, SPG edges, segmentation)] from the snapshot's cached
+        representation of ``Range_Points`` with the workstation's configuration (None when
+        the snapshot or the engine offers none)."""
+        config = getattr(workstation, "WORKSTATION_REPRESENTATION", None)
+        if config is None or not hasattr(snap, "representation"):
+            return None
+        try:
+            rep = snap.representation("Range_Points", config)
+            cloud = np.asarray(rep.objects, dtype=float)
+            if len(cloud) < 3:
+                return []
+            return [(cloud, _undirected(rep.graph.adjacency), rep.segmentation)]
+        except (MksError, AttributeError, TypeError) as exc:
+            log.debug("representation: %s", exc)
+            return None
 
     # ------------------------------------------------------------------ localization
 
@@ -519,6 +532,28 @@ class RerunRecorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _undirected(adjacency: Any) -> np.ndarray:
+    """(E, 2) each undirected edge of a (directed, sparse) SPG once."""
+    A = adjacency.tocoo()
+    pairs = np.sort(np.c_[A.row, A.col], axis=1)
+    return np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
+
+
+def _rebuilt_grouping(points: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, Any]]:
+    """SPG (m = 8) and ``segment_surfaces`` of each object cloud, rebuilt for display."""
+    out: list[tuple[np.ndarray, np.ndarray, Any]] = []
+    for idx in object_clouds(points, names.TABLE_TOP_Z):
+        cloud = points[idx]
+        spg = SpatialProximityGraph(cloud, m=8)
+        try:
+            seg = segment_surfaces(cloud, spg)
+        except MksError as exc:
+            log.debug("segmentation: %s", exc)
+            seg = None
+        out.append((cloud, _undirected(spg.adjacency), seg))
+    return out
 
 
 def _quality(c: Any, rank: int) -> float:
