@@ -91,7 +91,6 @@ def test_bad_backend_arguments() -> None:
 
 def test_unreachable_ray_address_fails_fast() -> None:
     pytest.importorskip("ray")
-    # Runs before the module's Ray fixture starts a session (file order).
     with pytest.raises(MksError, match=r"--address: no Ray cluster reachable at '127.0.0.1:1'"):
         run_episodes([], backend="ray", address="127.0.0.1:1")
     with pytest.raises(MksError, match=r"--address: expected auto or HOST:PORT, got 'head'"):

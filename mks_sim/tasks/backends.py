@@ -240,13 +240,13 @@ def _ray_connect(address: str | None, workers: int) -> bool:
     """Initialise Ray unless it already is; True when this call started the session."""
     import ray
 
+    if address not in (None, "auto"):
+        _check_reachable(address)  # even with a session open: a bad address is an error
     if ray.is_initialized():
         return False
     if address is None:
         ray.init(num_cpus=workers, include_dashboard=False, logging_level=logging.WARNING)
         return True
-    if address != "auto":
-        _check_reachable(address)
     try:
         ray.init(address=address, logging_level=logging.WARNING)
     except ConnectionError as exc:
