@@ -43,13 +43,12 @@ from mks_sim.sim.ik import SiteIK
 from mks_sim.tasks.controller import ArmHandController, RobotNames, quat_down
 from mks_sim.tasks.episode import (
     OBJECTS,
+    EpisodeAssembly,
     LocalizeFn,
-    make_touch_reader,
-    randomize_world,
-    remove_objects,
     sensor_localize_fn,
+    set_up_world,
 )
-from mks_sim.tasks.evaluate import HOLD_S, MIN_CLEARANCE_M, localization_error, lowest_point_z
+from mks_sim.tasks.evaluate import HOLD_S, MIN_CLEARANCE_M, lowest_point_z
 from mks_sim.tasks.spec import task_for_object
 
 MAX_STEP_M = 0.02  # pinch-point motion per step at |action| = 1
@@ -162,6 +161,8 @@ class GraspEnv(gym.Env):
         self._devices: Any = None
         self._renderer: mujoco.Renderer | None = None
         self._ctl: ArmHandController | None = None
+        self._assembly: EpisodeAssembly | None = None
+        self._provenance: dict[str, str] = {}
 
         w, h = self.image_size
         obs: dict[str, spaces.Space] = {
@@ -220,11 +221,7 @@ class GraspEnv(gym.Env):
 
         world = self.world
         mujoco.mj_resetData(world.model, world.data)
-        randomize_world(world, self.np_random)
-        if self.task.remove:
-            remove_objects(world, self.task.remove)
-        world.data.time = 0.0
-        world.mark_initial()
+        set_up_world(world, self.task, self.np_random)
         if self._devices is None:
             # Built once (camera renderers are costly); every reset re-seeds their noise.
             options_ = {
@@ -240,7 +237,19 @@ class GraspEnv(gym.Env):
             self._devices.values(), self.np_random.spawn(len(self._devices)), strict=True
         ):
             dev.rng = child
-        self._ctl = ArmHandController(world.physics, self._names, make_touch_reader(self._devices))
+        if self._assembly is None:
+            # The one episode assembly (tasks.episode) also behind run_episode and the demo:
+            # controller, touch reader and localization wired the same way. The env's agent
+            # decides the motions, so the assembly's re-sensing during approaches is off.
+            fn = self._localize_override or sensor_localize_fn(
+                self._devices, on_result=self._keep_provenance
+            )
+            self._assembly = EpisodeAssembly(
+                self.task, faults=self.faults, localize_fn=fn, resense_period_s=None
+            )
+        self._assembly.initialize_episode(world, self.np_random, devices=self._devices)
+        assert self._assembly.controller is not None
+        self._ctl = self._assembly.controller
         self._ctl.set_arm(self._ctl.arm_qpos())
         self._ctl.grip = -1.0
         self._target = self._ctl.pinch_pos()
@@ -314,6 +323,7 @@ class GraspEnv(gym.Env):
         if self._devices is not None:
             self._devices.close()
             self._devices = None
+        self._assembly = None  # bound to the closed devices
         _OPEN_ENVS.discard(self)
 
     # --- internals ------------------------------------------------------------------------
@@ -322,13 +332,11 @@ class GraspEnv(gym.Env):
         return 1.0 if command >= 0 else -1.0
 
     def _sense(self) -> None:
-        self._provenance: dict[str, str] = {}
-        fn = self._localize_override or sensor_localize_fn(
-            self._devices, on_result=self._keep_provenance
-        )
-        self._estimate = fn(self.world, self.object)
-        # Evaluation only: the estimate's error at the time it was sensed.
-        self._loc_error = localization_error(self.world, self.object, self._estimate)
+        assert self._assembly is not None
+        self._provenance = {}
+        self._estimate = self._assembly.sense()
+        # Evaluation only: the estimate's error at the time it was sensed (mm, degrees).
+        self._loc_error = self._assembly.errors[-1]
 
     def _keep_provenance(self, result: Any) -> None:
         self._provenance = dict(getattr(result, "provenance", {}))
@@ -411,13 +419,10 @@ class GraspEnv(gym.Env):
         return out, np.array([len(pts)])
 
     def _info(self, success: bool = False, clearance: float | None = None) -> dict[str, Any]:
-        err = self._loc_error
+        position_mm, rotation_deg = self._loc_error
         return {
             "success": bool(success),
-            "localization_error": {
-                "position_mm": err.position_mm,
-                "rotation_deg": err.rotation_deg,
-            },
+            "localization_error": {"position_mm": position_mm, "rotation_deg": rotation_deg},
             "clearance_m": self._clearance() if clearance is None else clearance,
             # Logical sensor -> the way that served it at the last sensing (fallbacks visible).
             "provenance": dict(self._provenance),
