@@ -2,12 +2,11 @@
 a model database" at configuration time).
 
 Models are TOML files under ``data_dir("tasks") / "models"``; each file holds one or more
-``[[model]]`` entries with a ``name`` and a ``kind``. A kind is turned into a model object by a
-loader registered with :func:`register_model_kind`; this module registers ``"feature"``
-(:class:`~mks_sim.models.feature.FeatureModel`). Other rooms register theirs (``"rotinv"``,
-``"hough3d"``, ``"freeform"``, ``"sphere"``, ...) in their own module; a kind met in a file and
-not yet registered makes the database import ``MODEL_KIND_MODULES[kind]`` (default
-``mks_sim.models.<kind>``) once, so registration happens lazily.
+``[[model]]`` entries with a ``name`` and a ``kind``. A kind is turned into a model object by its
+loader, named in the one table :data:`MODEL_KINDS` (kind -> ``"module:loader"``, imported the
+first time the kind is met): ``"feature"`` (:class:`~mks_sim.models.feature.FeatureModel`, here),
+``"rotinv"``, ``"hough3d"``, ``"freeform"``, ``"sphere"``. Code-built kinds (plugins, tests) are
+added with :func:`register_model_kind`.
 
 The same files hold ``[[object]]`` entries (what a physical object is: mesh, symmetry,
 physics, kinds); :mod:`mks_sim.models.objects` reads those, this database skips them.
@@ -29,7 +28,6 @@ Feature model entry::
 
 from __future__ import annotations
 
-import importlib
 import logging
 import tomllib
 from collections.abc import Callable, Mapping
@@ -41,8 +39,10 @@ import numpy as np
 
 from mks_sim.errors import MksError, NotFound, SpecError
 from mks_sim.lowlevel.metric import Metric, abs_diff
+from mks_sim.registry import Registry
 
 __all__ = [
+    "MODEL_KINDS",
     "MODEL_KIND_MODULES",
     "ModelDatabase",
     "ModelLoader",
@@ -56,43 +56,44 @@ log = logging.getLogger(__name__)
 # loader(entry: the [[model]] table, where: "file: model 'name'") -> the model object
 ModelLoader = Callable[[Mapping[str, Any], str], Any]
 
-_LOADERS: dict[str, ModelLoader] = {}
+#: Every model kind: kind -> "module:loader", one table resolved on first use (a
+#: :class:`~mks_sim.registry.Registry`): importing a loader's module registers nothing, so there
+#: is no import circle between the database and the kinds' modules.
+MODEL_KINDS: Registry[ModelLoader] = Registry(
+    "model kind",
+    {
+        "feature": "mks_sim.models.database:load_feature_model",
+        "rotinv": "mks_sim.models.hough_kinds:load_rotinv_model",
+        "hough3d": "mks_sim.models.hough_kinds:load_hough3d_model",
+        "freeform": "mks_sim.models.freeform:load_freeform_entry",
+        "sphere": "mks_sim.models.sphere:load_sphere_model",
+    },
+)
 
-# kind -> module that registers it when imported (others add their entries).
+#: kind -> module of its loader (read-only view of :data:`MODEL_KINDS`, kept for callers).
 MODEL_KIND_MODULES: dict[str, str] = {
-    "feature": "mks_sim.models.database",
-    "rotinv": "mks_sim.models.hough_kinds",
-    "hough3d": "mks_sim.models.hough_kinds",
-    "freeform": "mks_sim.models.freeform",
-    "sphere": "mks_sim.models.sphere",
+    kind: MODEL_KINDS.entry_point(kind).split(":")[0] for kind in MODEL_KINDS
 }
 
 
 def register_model_kind(kind: str, loader: ModelLoader) -> None:
-    """Register (or replace) the loader of model entries of ``kind``."""
-    if not isinstance(kind, str) or not kind:
-        raise SpecError(f"register_model_kind: expected a non-empty kind name, got {kind!r}")
-    _LOADERS[kind] = loader
+    """Add (or replace) the loader of model entries of ``kind`` built in code (plugins,
+    tests); the built-in kinds are the :data:`MODEL_KINDS` table."""
+    MODEL_KINDS.add(kind, loader, replace=True)
 
 
 def registered_kinds() -> tuple[str, ...]:
-    """The kinds that have a loader now."""
-    return tuple(sorted(_LOADERS))
+    """Every model kind (nothing is imported)."""
+    return tuple(MODEL_KINDS.names())
 
 
 def _loader_for(kind: str, where: str) -> ModelLoader:
-    if kind not in _LOADERS:
-        module = MODEL_KIND_MODULES.get(kind, f"mks_sim.models.{kind}")
-        try:
-            importlib.import_module(module)
-        except ImportError as exc:
-            log.debug("model kind %r: importing %s failed: %s", kind, module, exc)
-    if kind not in _LOADERS:
+    if kind not in MODEL_KINDS:
         raise SpecError(
-            f"{where}: field 'kind': unknown model kind {kind!r}; known kinds: "
-            f"{sorted(set(_LOADERS) | set(MODEL_KIND_MODULES))}"
+            f"{where}: field 'kind': unknown model kind {kind!r}; expected one of the model "
+            f"kinds {MODEL_KINDS.names()}"
         )
-    return _LOADERS[kind]
+    return MODEL_KINDS.get(kind)
 
 
 # --------------------------------------------------------------------------- feature models
@@ -203,9 +204,6 @@ def load_feature_model(entry: Mapping[str, Any], where: str) -> Any:
         )
     except SpecError as exc:
         raise SpecError(f"{where}: {exc}") from exc
-
-
-register_model_kind("feature", load_feature_model)
 
 
 # --------------------------------------------------------------------------- the database

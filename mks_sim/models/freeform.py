@@ -762,14 +762,3 @@ def load_freeform_entry(entry: Any, where: str) -> FreeformModel:
             model.save(tables)
     scale = float(entry.get("scale", 1.0))
     return model if scale == 1.0 else model.scaled(scale)
-
-
-def _register() -> None:
-    try:
-        from mks_sim.models.database import register_model_kind
-    except ImportError:  # the database room may not exist in a stripped-down install
-        return
-    register_model_kind("freeform", load_freeform_entry)
-
-
-_register()

@@ -27,7 +27,6 @@ import numpy as np
 
 from mks_sim.errors import MksError, SpecError
 from mks_sim.geometry.transforms import cube_rotations
-from mks_sim.models.database import register_model_kind
 
 __all__ = ["SYMMETRIES", "load_hough3d_model", "load_rotinv_model"]
 
@@ -128,7 +127,3 @@ def load_hough3d_model(entry: Mapping[str, Any], where: str) -> Any:
         entry,
         where,
     )
-
-
-register_model_kind("rotinv", load_rotinv_model)
-register_model_kind("hough3d", load_hough3d_model)
