@@ -164,3 +164,11 @@ def test_model_naming_an_unknown_sensor_is_an_error(tmp_path, capsys, monkeypatc
     out = capsys.readouterr().out
     n = int(out.split("; ")[-1].split()[0])
     assert n >= 8
+
+
+@pytest.mark.parametrize("path", ["/dev/zero", "FOLDER"])
+def test_check_a_device_or_folder_is_bad_input_not_a_hang(path, tmp_path, capsys) -> None:
+    target = str(tmp_path) if path == "FOLDER" else path
+    assert main(["sensors", "--check", target]) == 2
+    err = capsys.readouterr().err
+    assert f"{target}: expected a sensor file (TOML), got a" in err

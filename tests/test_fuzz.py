@@ -342,7 +342,7 @@ VOCAB = _vocabulary()
 TOKENS = st.one_of(
     st.sampled_from(["-1", "0", "3", "nan", "inf", "-inf", "1e999", "abc", "", "cube", "sphere",
                      "part", "scene2", "range_finder", "laser", "out", "out.txt", "x.gif",
-                     "/proc/x", "/dev/null", "no/such/dir/x.ply", "--", "-", "tables"]),
+                     "/proc/x", "/dev/null", "/dev/zero", "no/such/dir/x.ply", "--", "-", "tables"]),
     st.text(max_size=6),
     st.integers(-(2**70), 2**70).map(str),
     st.floats().map(repr),

@@ -205,6 +205,9 @@ def load_file(path: str | Path) -> SensorFile:
         SpecError: malformed TOML (with the line and column) or a malformed entry.
     """
     path = Path(path)
+    if path.exists() and not path.is_file():  # a folder, or a device such as /dev/zero
+        kind = "a folder" if path.is_dir() else "a special file (device or pipe)"
+        raise SpecError(f"{path}: expected a sensor file (TOML), got {kind}")
     try:
         raw = path.read_bytes()
     except FileNotFoundError:
