@@ -108,7 +108,7 @@ class Registry(Generic[T]):
             NotFound: unknown name (the message lists the known ones).
             SpecError: the entry point cannot be resolved.
         """
-        if name in self._resolved:
+        if isinstance(name, str) and name in self._resolved:
             return self._resolved[name]
         if not isinstance(name, str) or name not in self._targets:
             raise NotFound(f"unknown {self.kind} {name!r}; known {self.kind}s: {self.names()}")
@@ -123,7 +123,7 @@ class Registry(Generic[T]):
 
     def entry_point(self, name: str) -> str:
         """The ``"module:callable"`` string of ``name`` (``module:qualname`` for objects)."""
-        if name not in self._targets:
+        if name not in self:
             raise NotFound(f"unknown {self.kind} {name!r}; known {self.kind}s: {self.names()}")
         return _show(self._targets[name])
 
@@ -132,7 +132,7 @@ class Registry(Generic[T]):
         return sorted(self._targets)
 
     def __contains__(self, name: object) -> bool:
-        return name in self._targets
+        return isinstance(name, str) and name in self._targets
 
     def __iter__(self) -> Iterator[str]:
         return iter(self.names())

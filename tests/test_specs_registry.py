@@ -41,6 +41,9 @@ def test_registry_unknown_name_lists_known():
     reg: Registry[object] = Registry("widget", {"b": "os:getcwd", "a": "os:getpid"})
     with pytest.raises(NotFound, match=r"unknown widget 'c'; known widgets: \['a', 'b'\]"):
         reg.get("c")
+    with pytest.raises(NotFound, match=r"unknown widget \['a'\]"):
+        reg.get(["a"])  # type: ignore[arg-type]  (an unhashable name from a bad file)
+    assert ["a"] not in reg
 
 
 def test_registry_bad_targets():
