@@ -119,6 +119,13 @@ def test_ray_retries_a_dead_worker(ray_session, tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+def test_ray_gives_up_after_max_retries(ray_session, tmp_path: Path) -> None:
+    with pytest.raises(MksError, match=r"its worker died 2 times .*max_retries=1"):
+        run_episodes([(str(tmp_path), 0)], fn=_always_crash, backend="ray", max_retries=1,
+                     progress=False)  # fmt: skip
+
+
+@pytest.mark.slow
 def test_ray_propagates_episode_errors(ray_session) -> None:
     with pytest.raises(MksError, match="episode 2 failed on purpose"):
         run_episodes([2], fn=_fails, backend="ray", progress=False)
