@@ -218,3 +218,71 @@ def test_both_update_splices(monkeypatch, max_runs):
         else:
             g.delete(rng.choice(g.n, 4, replace=False))
         assert_matches(g, brute_spg(g.points, 3, 2.5, Metric.euclidean()))
+
+
+# --------------------------------------------------------------------------- the grid kernel
+GRID_METRICS = {"euclidean": Metric.euclidean(), "weighted": Metric.minkowski(2, weights=[1.0, 0.5])}
+
+
+@pytest.mark.parametrize("name", sorted(GRID_METRICS))
+@settings(max_examples=30, deadline=None)
+@given(points=points2d, m=st.integers(1, 5), threshold=thresholds)
+def test_grid_spg_matches_brute_force(name, points, m, threshold):
+    # integer coordinates: many exact ties and duplicates, decided by index like the brute force
+    metric = GRID_METRICS[name]
+    g = SpatialProximityGraph(points, m=m, threshold=threshold, metric=metric, method="grid")
+    assert_matches(g, brute_spg(points, m, threshold, metric))
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+@pytest.mark.parametrize("threshold", [None, 0.08])
+def test_grid_equals_tree_on_clustered_points(dim, threshold):
+    # clusters of different densities, duplicates, a dense clump (crowded cells are left to the
+    # tree) and far outliers (rows the grid cannot prove): the grid path must give exactly the
+    # tree path's graph, and the grid itself must answer most rows
+    from mks_sim.lowlevel._gridknn import grid_knn
+
+    rng = np.random.default_rng(dim)
+    sizes = (0.03, 0.05, 0.1, 0.1)
+    parts = [rng.normal(c, s, size=(1500, dim)) for c, s in zip(rng.random(4) * 3, sizes)]
+    parts.append(np.repeat(rng.random((3, dim)), 40, axis=0))  # duplicates
+    parts.append(rng.normal(0.5, 1e-4, size=(300, dim)))  # a clump
+    parts.append(rng.random((4, dim)) * 100 + 50)  # outliers
+    pts = np.concatenate(parts)[rng.permutation(sum(len(p) for p in parts))]
+    assert grid_knn(pts, 6, threshold)[3].mean() > 0.8
+    tree = SpatialProximityGraph(pts, m=6, threshold=threshold, method="tree")
+    grid = SpatialProximityGraph(pts, m=6, threshold=threshold, method="grid")
+    for a, b in ((grid.adjacency, tree.adjacency), (grid.symmetric(), tree.symmetric())):
+        assert np.array_equal(a.indptr, b.indptr) and np.array_equal(a.indices, b.indices)
+        assert np.array_equal(a.data, b.data)
+    for i in rng.choice(len(pts), 50, replace=False):
+        assert grid.neighbors(i).tolist() == tree.neighbors(i).tolist()
+        assert np.array_equal(grid.distances(i), tree.distances(i))
+
+
+def test_grid_rows_against_brute_force_3d():
+    rng = np.random.default_rng(8)
+    pts = np.round(rng.random((400, 3)) * 6) / 2  # a lattice: ties everywhere
+    g = SpatialProximityGraph(pts, m=7, threshold=1.2, method="grid")
+    assert_matches(g, brute_spg(pts, 7, 1.2, Metric.euclidean()))
+
+
+def test_grid_graph_updates_and_tree():
+    rng = np.random.default_rng(9)
+    pts = rng.integers(-4, 5, size=(60, 3)).astype(float)
+    g = SpatialProximityGraph(pts, m=3, threshold=2.5, method="grid")
+    assert isinstance(g.tree, KDTree) and g.tree.n == 60  # built on demand
+    g.insert(rng.integers(-4, 5, size=(5, 3)).astype(float))
+    g.delete([0, 7, 30])
+    assert_matches(g, brute_spg(g.points, 3, 2.5, Metric.euclidean()))
+
+
+def test_grid_method_errors():
+    with pytest.raises(SpecError, match="method='grid' needs an integer m"):
+        SpatialProximityGraph(np.zeros((3, 2)), m="all", threshold=1.0, method="grid")
+    with pytest.raises(SpecError, match="dimension <= 3"):
+        SpatialProximityGraph(np.zeros((3, 4)), m=2, method="grid")
+    with pytest.raises(SpecError, match="Euclidean"):
+        SpatialProximityGraph(np.zeros((3, 2)), m=2, metric=Metric.manhattan(), method="grid")
+    with pytest.raises(SpecError, match="method 'auto', 'tree' or 'grid'"):
+        SpatialProximityGraph(np.zeros((3, 2)), m=2, method="fast")

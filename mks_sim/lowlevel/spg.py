@@ -41,11 +41,15 @@ from mks_sim.lowlevel.metric import Metric, validate_points
 __all__ = ["SpatialProximityGraph"]
 
 Neighbours = int | Literal["all"]
+Method = Literal["auto", "tree", "grid"]
 
 # Entries (queries x (m + 2)) per chunk of tree queries.
 _CHUNK_ENTRIES = 1 << 20
 # Updates touching more runs of rows than this use the general (vectorised) splice.
 _MAX_RUNS = 4096
+# method="auto" uses the compiled grid from this many points on: below it, the tree is fast
+# enough and a fresh process would pay numba's import (~0.5 s) for nothing.
+_GRID_MIN_POINTS = 250_000
 
 
 def _check_params(m: Neighbours, threshold: float | None) -> tuple[Neighbours, float | None]:
@@ -76,6 +80,14 @@ class SpatialProximityGraph:
         metric: the distance (default Euclidean); ``Metric.sum_of`` works too.
         leafsize: bucket size of the k-d tree.
         workers: threads for the tree queries (-1: all cores).
+        method: how the rows are found. ``"tree"``: queries of the paper's k-d tree
+            (:class:`KDTree`, balanced median splits). ``"grid"``: the compiled uniform-grid
+            kernel of :mod:`mks_sim.lowlevel._gridknn` (numba; Euclidean or weighted Euclidean
+            metrics, points of dimension <= 3, integer m), which proves each row exact and
+            leaves the rows it cannot prove to the tree; the tree itself is then built only
+            when needed (:attr:`tree`, updates, such rows). Both give the same graph (the
+            tests check both against brute force). ``"auto"``: the grid from 250,000 points on
+            when it applies and numba imports, else the tree.
 
     Attributes:
         m, threshold, metric: the parameters.
@@ -89,12 +101,26 @@ class SpatialProximityGraph:
         metric: Metric | None = None,
         leafsize: int = 16,
         workers: int = -1,
+        method: Method = "auto",
     ) -> None:
         pts = np.asarray(points, dtype=float)
         if pts.ndim != 2:
             raise DataError(f"SpatialProximityGraph points: expected (N, k), got shape {pts.shape}")
         if pts.size:
             pts = validate_points(pts, "SpatialProximityGraph points")
+        if method not in ("auto", "tree", "grid"):
+            raise SpecError(
+                f"SpatialProximityGraph: expected method 'auto', 'tree' or 'grid', got {method!r}"
+            )
+        metric = metric if metric is not None else Metric.euclidean()
+        if method != "tree":
+            m_checked, _ = _check_params(m, threshold)
+            why = _grid_unfit(pts, metric, m_checked)
+            if method == "grid" and why:
+                raise SpecError(f"SpatialProximityGraph: method='grid' needs {why}")
+            if not why and (method == "grid" or len(pts) >= _GRID_MIN_POINTS):
+                self._init_grid(pts, m, threshold, metric, leafsize, workers)
+                return
         tree = KDTree(pts, leafsize=leafsize, metric=metric)
         self._init(tree, m, threshold, workers)
 
@@ -130,7 +156,9 @@ class SpatialProximityGraph:
         self.m, self.threshold = _check_params(m, threshold)
         self.metric = tree.metric
         self.workers = workers
-        self._tree = tree
+        self._tree: KDTree | DynamicKDTree | None = tree
+        self._data = tree.data if isinstance(tree, KDTree) else None
+        self._leafsize = tree.leafsize
         if isinstance(tree, DynamicKDTree):
             self._ids = tree.ids
         else:
@@ -141,11 +169,60 @@ class SpatialProximityGraph:
         self._dist = dist
         self._adj: sparse.csr_array | None = None
 
+    def _init_grid(
+        self,
+        pts: NDArray[np.float64],
+        m: Neighbours,
+        threshold: float | None,
+        metric: Metric,
+        leafsize: int,
+        workers: int,
+    ) -> None:
+        """Rows from the compiled grid; rows it cannot prove come from the (lazy) tree."""
+        from mks_sim.lowlevel._gridknn import grid_knn
+
+        self.m, self.threshold = _check_params(m, threshold)
+        self.metric = metric
+        self.workers = workers
+        if not (isinstance(leafsize, int | np.integer) and leafsize >= 1):
+            raise DataError(f"KDTree: expected leafsize >= 1, got {leafsize!r}")
+        self._leafsize = int(leafsize)
+        self._tree = None
+        data = pts.copy()
+        data.setflags(write=False)
+        self._data = data
+        n = len(data)
+        self._ids = np.arange(n, dtype=np.intp)
+        mm = int(self.m)
+        scale = metric.coordinate_scale(data.shape[1])
+        # the metric's arithmetic: |q * s - d * s| (no copy when unscaled)
+        scaled = data if np.all(scale == 1.0) else data * scale
+        nbr, dist, lens, done = grid_knn(scaled, mm, self.threshold, workers)
+        rest = np.flatnonzero(~done)
+        if rest.size:  # outliers, crowded cells: the tree's exact rows
+            r_len, r_nbr, r_dist = self._compute_rows(rest.astype(np.intp))
+            slot = np.arange(len(r_nbr)) - np.repeat(np.cumsum(r_len) - r_len, r_len)
+            rows = np.repeat(rest, r_len)
+            nbr[rest] = -1
+            nbr[rows, slot] = r_nbr
+            dist[rows, slot] = r_dist
+            lens[rest] = r_len
+        if n and int(lens.min()) == mm:
+            self._nbr = nbr.reshape(-1).astype(np.intp, copy=False)
+            self._dist = dist.reshape(-1)
+        else:
+            keep = np.arange(mm) < lens[:, None]
+            self._nbr = nbr[keep].astype(np.intp, copy=False)
+            self._dist = dist[keep]
+        self._indptr = np.zeros(n + 1, np.intp)
+        np.cumsum(lens, out=self._indptr[1:])
+        self._adj = None
+
     # ------------------------------------------------------------------ the tree side
     def _points_of(self, ids: NDArray[np.intp]) -> NDArray[np.float64]:
         if isinstance(self._tree, DynamicKDTree):
             return self._tree.points_of(ids)
-        data = self._tree.data
+        data = self._data if self._data is not None else self.tree.data
         if len(ids) == len(data) and (len(ids) == 0 or (ids[0] == 0 and ids[-1] == len(ids) - 1)):
             return data  # all points in order (ids are 0..N-1): the read-only array itself
         return data[ids]
@@ -170,7 +247,7 @@ class SpatialProximityGraph:
             radii = np.full(nq, self.threshold * (1 + 1e-12) + 1e-30)
         else:
             ball_list, radii_list = [], []
-            tree = self._tree
+            tree = self.tree
             if isinstance(tree, KDTree) and nq == tree.n and nq > 1:
                 # Query in the tree's leaf order: neighbouring queries walk the same nodes
                 # (cache-friendly; 1.3-2x faster on 1e5-1e6 unordered points).
@@ -234,7 +311,7 @@ class SpatialProximityGraph:
         dub = math.inf if self.threshold is None else self.threshold * (1 + 1e-12) + 1e-30
         # Threads cost more than they save on a handful of rows (updates).
         workers = self.workers if nq >= 2048 else 1
-        d, i = self._tree.query(q, k=m + 2, distance_upper_bound=dub, workers=workers)
+        d, i = self.tree.query(q, k=m + 2, distance_upper_bound=dub, workers=workers)
         d = np.asarray(d).reshape(nq, m + 2)
         i = np.asarray(i).reshape(nq, m + 2)
         valid = np.isfinite(d) & (i != self_ids[:, None])
@@ -272,7 +349,7 @@ class SpatialProximityGraph:
         self, x: NDArray[np.float64], self_id: int, r: float
     ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         """Exact row of one point from a ball query: (ids, distances), nearest first, ties by id."""
-        idx = np.asarray(self._tree.query_ball_point(x, r, workers=1), dtype=np.intp)
+        idx = np.asarray(self.tree.query_ball_point(x, r, workers=1), dtype=np.intp)
         idx = idx[idx != self_id]
         dd = self.metric.distance(x, self._points_of(idx)) if idx.size else np.zeros(0)
         if self.threshold is not None:
@@ -299,7 +376,13 @@ class SpatialProximityGraph:
 
     @property
     def tree(self) -> KDTree | DynamicKDTree:
-        """The k-d tree the graph is built on (a DynamicKDTree after the first update)."""
+        """The k-d tree of the graph's points (a DynamicKDTree after the first update).
+
+        With ``method="grid"`` the (paper's) tree is built on first access.
+        """
+        if self._tree is None:
+            assert self._data is not None
+            self._tree = KDTree(self._data, leafsize=self._leafsize, metric=self.metric)
         return self._tree
 
     def _cols(self) -> NDArray[np.intp]:
@@ -384,13 +467,14 @@ class SpatialProximityGraph:
     # ------------------------------------------------------------------ updates
     def _ensure_dynamic(self) -> DynamicKDTree:
         if not isinstance(self._tree, DynamicKDTree):
-            static = self._tree
+            data = self._data if self._data is not None else self.tree.data
             self._tree = DynamicKDTree(
-                static.data if static.n else None,
-                k=static.m,
-                leafsize=static.leafsize,
-                metric=static.metric,
+                data if len(data) else None,
+                k=data.shape[1],
+                leafsize=self._leafsize,
+                metric=self.metric,
             )
+            self._data = None
         return self._tree
 
     def _reach(self) -> NDArray[np.float64]:
@@ -571,3 +655,18 @@ class SpatialProximityGraph:
             f"SpatialProximityGraph(n={self.n}, m={self.m!r}, threshold={self.threshold!r}, "
             f"edges={len(self._nbr)}, metric={self.metric.kind})"
         )
+
+
+def _grid_unfit(pts: NDArray[np.float64], metric: Metric, m: Neighbours) -> str:
+    """Why the grid kernel cannot build this SPG ('' when it can)."""
+    from mks_sim.lowlevel import _gridknn
+
+    if m == "all":
+        return "an integer m, got m='all'"
+    if not (metric.is_minkowski and metric.p == 2):
+        return f"a Euclidean metric (weights/ranges allowed), got {metric.kind} p={metric.p}"
+    if pts.shape[1] > 3:
+        return f"points of dimension <= 3, got {pts.shape[1]}"
+    if not _gridknn.available():
+        return "numba (pip install numba==0.68.1), which does not import"
+    return ""

@@ -1,0 +1,246 @@
+"""The compiled kernels of :mod:`mks_sim.lowlevel._gridknn` (imported only when numba is used).
+
+Module-level functions so that numba caches their machine code (``cache=True``) in
+``__pycache__``: the first use on a machine compiles (seconds), later processes load it.
+"""
+# mypy: ignore-errors
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+# Cells per parallel task.
+_CHUNK = 256
+
+
+@nb.njit(cache=True)
+def cell_coords(pts, lo, h, dims):
+    n = pts.shape[0]
+    out = np.empty((n, 3), np.int64)
+    for i in range(n):
+        for a in range(3):
+            c = int(math.floor((pts[i, a] - lo[a]) / h))
+            if c < 0:
+                c = 0
+            elif c >= dims[a]:
+                c = dims[a] - 1
+            out[i, a] = c
+    return out
+
+
+@nb.njit(cache=True)
+def count_occupied(pts, lo, h, dims):
+    n = pts.shape[0]
+    size = 1
+    while size < 2 * n:
+        size *= 2
+    table = np.full(size, -1, np.int64)
+    mask = size - 1
+    occupied = 0
+    for i in range(n):
+        key = 0
+        for a in range(3):
+            c = int(math.floor((pts[i, a] - lo[a]) / h))
+            if c < 0:
+                c = 0
+            elif c >= dims[a]:
+                c = dims[a] - 1
+            key = key * dims[a] + c
+        slot = ((key ^ (key >> 29)) * 0x2545F4914F6CDD1D) & mask
+        while True:
+            v = table[slot]
+            if v == key:
+                break
+            if v == -1:
+                table[slot] = key
+                occupied += 1
+                break
+            slot = (slot + 1) & mask
+    return occupied
+
+
+@nb.njit(cache=True, parallel=True)
+def knn_cells(
+    sx,  # (N,) x of the points sorted by cell
+    sy,
+    sz,
+    sidx,  # (N,) their original indices
+    ccoord,  # (C, 3) cell coordinates of the occupied cells, by key
+    ckey,  # (C,) their keys, ascending
+    cstart,  # (C + 1,) first sorted point of each cell
+    colptr,  # (X * Y + 1,) first cell of each (x, y) column
+    todo,  # (N,) bool, sorted order: rows still to answer
+    lo,
+    h,
+    dims,
+    m,
+    thr,
+    ring,
+    margin,
+    max_block,
+    out_nbr,  # (N, m) original order
+    out_dist,
+    out_len,
+    done,  # (N,) bool, original order
+):
+    ncell = ckey.shape[0]
+    ncol = (2 * ring + 1) * (2 * ring + 1)
+    nchunk = (ncell + _CHUNK - 1) // _CHUNK
+    for ch in nb.prange(nchunk):
+        # Buffers shared by the chunk's cells (allocating per cell costs more than the work).
+        rlo = np.empty(ncol, np.int64)
+        rhi = np.empty(ncol, np.int64)
+        bx = np.empty(max_block)
+        by = np.empty(max_block)
+        bz = np.empty(max_block)
+        bt = np.empty(max_block, np.int64)
+        d2 = np.empty(max_block)
+        bd = np.empty(6)
+        best_d = np.empty(m)
+        best_d2 = np.empty(m)
+        best_i = np.empty(m, np.int64)
+        for c in range(ch * _CHUNK, min(ncell, (ch + 1) * _CHUNK)):
+            cell_rows(
+                c, sx, sy, sz, sidx, ccoord, ckey, cstart, colptr, todo, lo, h, dims, m, thr, ring,
+                margin, max_block, out_nbr, out_dist, out_len, done,
+                rlo, rhi, bx, by, bz, bt, d2, bd, best_d, best_d2, best_i,
+            )  # fmt: skip
+
+
+@nb.njit(cache=True)
+def lower_bound(a, v, lo_, hi_):
+    while lo_ < hi_:
+        mid = (lo_ + hi_) >> 1
+        if a[mid] < v:
+            lo_ = mid + 1
+        else:
+            hi_ = mid
+    return lo_
+
+
+@nb.njit(cache=True)
+def cell_rows(
+    c, sx, sy, sz, sidx, ccoord, ckey, cstart, colptr, todo, lo, h, dims, m, thr, ring,
+    margin, max_block, out_nbr, out_dist, out_len, done,
+    rlo, rhi, bx, by, bz, bt, d2, bd, best_d, best_d2, best_i,
+):  # fmt: skip
+    """The rows of the points of cell c (see knn_cells)."""
+    s0 = cstart[c]
+    s1 = cstart[c + 1]
+    any_todo = False
+    for s in range(s0, s1):
+        if todo[s]:
+            any_todo = True
+            break
+    if not any_todo:
+        return
+    cx = ccoord[c, 0]
+    cy = ccoord[c, 1]
+    cz = ccoord[c, 2]
+    # The block's columns: for each (x, y) a contiguous range of sorted points over z.
+    nr = 0
+    total = 0
+    z0 = max(cz - ring, 0)
+    z1 = min(cz + ring, dims[2] - 1)
+    for x in range(max(cx - ring, 0), min(cx + ring, dims[0] - 1) + 1):
+        for y in range(max(cy - ring, 0), min(cy + ring, dims[1] - 1) + 1):
+            col = x * dims[1] + y
+            base = col * dims[2]
+            if colptr.shape[0]:
+                c0 = colptr[col]
+                c1 = colptr[col + 1]
+            else:  # no column table (too many columns): search all cells
+                c0 = 0
+                c1 = ckey.shape[0]
+            a = lower_bound(ckey, base + z0, c0, c1)
+            b = lower_bound(ckey, base + z1 + 1, a, c1)
+            if b > a:
+                rlo[nr] = cstart[a]
+                rhi[nr] = cstart[b]
+                total += cstart[b] - cstart[a]
+                nr += 1
+    if total > max_block:
+        return
+    # The block's points, gathered once for all the points of the cell.
+    u = 0
+    for r in range(nr):
+        for t in range(rlo[r], rhi[r]):
+            bx[u] = sx[t]
+            by[u] = sy[t]
+            bz[u] = sz[t]
+            bt[u] = sidx[t]
+            u += 1
+    # Distance from a point of this cell to the block's boundary, per face; faces on
+    # the grid's edge have no points beyond them.
+    for a in range(3):
+        ca = ccoord[c, a]
+        bd[2 * a] = lo[a] + (ca - ring) * h if ca - ring > 0 else -np.inf
+        bd[2 * a + 1] = lo[a] + (ca + ring + 1) * h if ca + ring < dims[a] - 1 else np.inf
+    lim0 = np.inf  # squared distance beyond which nothing can enter
+    if thr < np.inf:
+        lim0 = thr * thr * (1.0 + 1e-14) + 1e-300
+    guess = np.inf  # the previous row's m-th squared distance (neighbours are alike)
+    for s in range(s0, s1):
+        if not todo[s]:
+            continue
+        me = sidx[s]
+        qx = sx[s]
+        qy = sy[s]
+        qz = sz[s]
+        for t in range(total):  # vectorised by LLVM
+            dx = qx - bx[t]
+            dy = qy - by[t]
+            dz = qz - bz[t]
+            d2[t] = (dx * dx + dy * dy) + dz * dz
+        cnt = 0
+        lim2 = lim0
+        if guess < lim2:
+            # Start from the guess when it holds m others: far fewer insertions.
+            inside = 0
+            for t in range(total):  # vectorised
+                inside += d2[t] <= guess
+            if inside > m:
+                lim2 = guess
+        for t in range(total):
+            if d2[t] > lim2:
+                continue
+            j = bt[t]
+            if j == me:
+                continue
+            d = math.sqrt(d2[t])
+            if d > thr:
+                continue
+            if cnt == m:
+                dl = best_d[m - 1]
+                if d > dl or (d == dl and j > best_i[m - 1]):
+                    continue
+                k = m - 1
+            else:
+                k = cnt
+                cnt += 1
+            while k > 0 and (best_d[k - 1] > d or (best_d[k - 1] == d and best_i[k - 1] > j)):
+                best_d[k] = best_d[k - 1]
+                best_d2[k] = best_d2[k - 1]
+                best_i[k] = best_i[k - 1]
+                k -= 1
+            best_d[k] = d
+            best_d2[k] = d2[t]
+            best_i[k] = j
+            if cnt == m:
+                lim2 = min(lim2, best_d2[m - 1] * (1.0 + 1e-14) + 1e-300)
+        if cnt == m:
+            guess = best_d2[m - 1] * (1.0 + 1e-14) + 1e-300
+        cov = min(qx - bd[0], bd[1] - qx, qy - bd[2], bd[3] - qy, qz - bd[4], bd[5] - qz)
+        reach = thr
+        if cnt == m and best_d[m - 1] < reach:
+            reach = best_d[m - 1]
+        if not (reach < cov - margin):
+            continue
+        for k in range(cnt):
+            out_nbr[me, k] = best_i[k]
+            out_dist[me, k] = best_d[k]
+        out_len[me] = cnt
+        done[me] = True
