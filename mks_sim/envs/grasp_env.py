@@ -4,14 +4,13 @@ The agent moves the Jaco's pinch point (Cartesian deltas and a yaw delta; the ar
 through a damped-least-squares IK step on the raw MuJoCo model, :mod:`mks_sim.sim.ik`) and
 drives the hand: v0 opens / closes it (binary grip), v1 commands the finger velocity
 (continuous grip, a fraction of the finger actuators' range). It observes the logical-sensor
-outputs:
-the localization estimate of the object (sensed at ``reset``, and again every
+outputs: the localization estimate of the object (sensed at ``reset``, and again every
 ``resense_every`` steps when asked), the fingertip touch pads and the arm's proprioception;
 camera images, depth and range points only when the constructor asks for them.
 
 Example:
     >>> import gymnasium as gym, mks_sim
-    >>> env = gym.make("mks_sim/Grasp-v0", object="cube")     # doctest: +SKIP
+    >>> env = gym.make("mks_sim/Grasp-v1", object="cube")     # doctest: +SKIP
     >>> obs, info = env.reset(seed=0)                          # doctest: +SKIP
     >>> obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
 
