@@ -31,16 +31,27 @@ import numpy as np
 
 from mks_sim.cli import output_dir
 from mks_sim.errors import MksError, SpecError
+from mks_sim.sim import names
 from mks_sim.viz import add_rerun_argument, open_recorder
 
 HELP = "write camera images, disparity, range scan (PLY) and SPG/region/vertex pictures"
 
 log = logging.getLogger(__name__)
-SCENES = ("scene1", "scene2", "part")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scene", required=True, choices=SCENES, help="scene to build")
+    parser.add_argument(
+        "--scene", default=None, metavar="NAME|FILE",
+        help="scene name (worlds/*.toml: scene1, scene2, part, ...) or scene file",
+    )  # fmt: skip
+    parser.add_argument(
+        "--object", action="append", default=[], metavar="NAME",
+        help="without --scene: the default scene of these database objects, dropped",
+    )  # fmt: skip
+    parser.add_argument(
+        "--models", action="append", default=[], metavar="DIR",
+        help="extra model-database folder (repeatable; also MKS_SIM_MODELS)",
+    )  # fmt: skip
     parser.add_argument(
         "--out", required=True, type=Path, help="output folder (created; its parent must exist)"
     )
@@ -130,7 +141,9 @@ def _save_top_view(plt: Any, fig: Any, ax: Any, path: Path) -> None:
     plt.close(fig)
 
 
-def _objects(points: np.ndarray, table_z: float = 0.75, margin: float = 0.004) -> np.ndarray:
+def _objects(
+    points: np.ndarray, table_z: float = names.TABLE_TOP_Z, margin: float = 0.004
+) -> np.ndarray:
     return points[points[:, 2] > table_z + margin]
 
 
@@ -181,7 +194,7 @@ def draw_planes(
     plt, fig, ax = _figure()
     k = 0
     for cloud in _object_clouds(
-        points, {"table_z_m": 0.75, "table_margin_m": 0.004, "gap_m": 0.012, "m": 12}
+        points, {"table_z_m": names.TABLE_TOP_Z, "table_margin_m": 0.004, "gap_m": 0.012, "m": 12}
     ):
         try:
             seg = segment_surfaces(cloud, m=12)
@@ -227,7 +240,7 @@ def draw_detections(path: Path, frame: Any, circles: np.ndarray, shapes: np.ndar
     nuts = {m.description for m in match_spg([db.get("square_nut")], shapes)}
     plt, fig, ax = _figure((7.2, 5.6))
     ax.imshow(frame.rgb)
-    z = 0.75
+    z = names.TABLE_TOP_Z
     for i, (x, y, r) in enumerate(circles):
         if r <= 0:
             continue
@@ -261,8 +274,19 @@ def run(args: argparse.Namespace) -> int:
         raise SpecError(
             f"--fail: unknown device(s) {unknown}; valid device names: {list(DEVICE_NAMES)}"
         )
+    if args.scene is None and not args.object:
+        raise SpecError("expected --scene NAME|FILE or --object NAME, got neither")
     out: Path = output_dir(args.out, "--out")  # checked (and created) before any work
-    world = build_world(args.scene, seed=args.seed)
+    world = build_world(args.scene, seed=args.seed, objects=args.object, models=args.models)
+    # what to draw follows the scene's content: flat parts on a tray (scene 1) or objects
+    # whose default sensor is the control-point detector (the part)
+    tray = world.scene.support_z > names.TABLE_TOP_Z
+    from mks_sim.models.objects import load_object
+
+    wants_control = any(
+        load_object(m, models=args.models).sensor == "Control_Point_Detector"
+        for m in set(world.scene.models.values())
+    )
     faults = {d: DeviceFaults(failed=True) for d in args.fail}
     seed = 0 if args.seed is None else int(args.seed)
     written: list[str] = []
@@ -289,7 +313,7 @@ def run(args: argparse.Namespace) -> int:
             _save_rgb(out / "disparity.png", _colormap(disp, "turbo"))
             written.append("disparity.png")
         snap = graph.snapshot(devs)
-        if args.scene == "scene1":
+        if tray:
             circles = snap.get("Circle_Detector").data
             shapes = snap.get("Corner_Holes_Detector").data
             if "overhead_camera" in frames:
@@ -306,7 +330,7 @@ def run(args: argparse.Namespace) -> int:
             served = snap.provenance.get("Range_Points", "primary")
             draw_spg(out / "spg.png", pts, f"SPG of Range_Points ({served})")
             written.append("spg.png")
-            if args.scene != "scene1":
+            if not tray:
                 try:
                     draw_curvature(out / "curvature.png", snap.get("Surface_Curvature").data)
                     written.append("curvature.png")
@@ -315,7 +339,7 @@ def run(args: argparse.Namespace) -> int:
                 verts = ctrl = None
                 try:
                     verts = snap.get("Vertex_Detector").data
-                    if args.scene == "part":
+                    if wants_control:
                         ctrl = snap.get("Control_Point_Detector").data
                 except MksError as exc:
                     log.warning("vertexes: %s", exc)
