@@ -36,6 +36,7 @@ __all__ = [
     "describe",
     "located",
     "param",
+    "params_schema",
     "parse_dataclass",
     "require_bool",
     "require_keys",
@@ -456,3 +457,37 @@ def parse_dataclass(cls: type[D], table: Any, where: Where, field: str = "params
             sub, expected, got = exc.args
             raise where.error(f"{field}.{sub}" if field else sub, expected, got) from None
         raise where.at(field).fail(str(exc)) from None
+
+
+def _type_text(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        return " | ".join("None" if a is type(None) else _type_text(a) for a in args)
+    if origin is typing.Literal:
+        return " | ".join(repr(a) for a in args)
+    if origin is tuple:
+        if args and args[-1] is Ellipsis:
+            return f"list of {_type_text(args[0])}"
+        return f"list of {len(args)} {_type_text(args[0]) if len(set(args)) == 1 else 'values'}"
+    return _type_name(tp)
+
+
+def params_schema(cls: type) -> dict[str, dict[str, Any]]:
+    """What :func:`parse_dataclass` accepts for ``cls``: field -> ``{"type", "default" or
+    "required", constraints}`` (for ``mks-sim sensors --programs``)."""
+    hints = typing.get_type_hints(cls)
+    out: dict[str, dict[str, Any]] = {}
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        if not f.init:
+            continue
+        item: dict[str, Any] = {"type": _type_text(hints[f.name])}
+        if f.default is not dataclasses.MISSING:
+            item["default"] = list(f.default) if isinstance(f.default, tuple) else f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            item["default"] = f.default_factory()
+        else:
+            item["required"] = True
+        item.update({k: v for k, v in f.metadata.items() if v is not None})
+        out[f.name] = item
+    return out

@@ -172,3 +172,20 @@ def test_check_a_device_or_folder_is_bad_input_not_a_hang(path, tmp_path, capsys
     assert main(["sensors", "--check", target]) == 2
     err = capsys.readouterr().err
     assert f"{target}: expected a sensor file (TOML), got a" in err
+
+
+def test_programs_lists_the_params_each_program_accepts(capsys) -> None:
+    assert main(["sensors", "--programs", "--json"]) == 0
+    schema = json.loads(capsys.readouterr().out)
+    assert schema["program vertex_detector"]["m"] == {"type": "int", "default": 12, "low": 1}
+    assert schema["acceptance min_rows"]["min"]["required"] is True
+    assert schema["program concat"] == {}  # takes no params: any key is an error
+    from mks_sim.sensing import ACCEPTANCE, PROGRAMS
+
+    for kind, table in (("program", PROGRAMS), ("acceptance", ACCEPTANCE)):
+        for name in table.names():  # every built-in declares its params (tests add others)
+            if table.entry_point(name).startswith("mks_sim.sensing.programs."):
+                assert schema[f"{kind} {name}"] is not None, name
+    assert main(["sensors", "--programs"]) == 0
+    text = capsys.readouterr().out
+    assert "program range_points:" in text and "voxel_m: float, default 0.0, >= 0" in text

@@ -34,6 +34,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="validate one sensor file against the installed devices and sensors",
     )
     parser.add_argument(
+        "--programs",
+        action="store_true",
+        help="list the programs and acceptance tests with the params each accepts",
+    )
+    parser.add_argument(
         "--models",
         metavar="DIR",
         action="append",
@@ -173,7 +178,56 @@ def _check_models(graph: SensorGraph, extra: list[Path] | list[str]) -> int:
     return graph.check_model_files(files)
 
 
+def program_params() -> dict[str, dict[str, dict[str, Any]]]:
+    """Every program and acceptance test -> its params schema (``{}``: takes none; None: not
+    declared, so not checked)."""
+    from mks_sim.sensing.registry import ACCEPTANCE, PROGRAMS, params_type
+    from mks_sim.specs import params_schema
+
+    out: dict[str, Any] = {}
+    for kind, table in (("program", PROGRAMS), ("acceptance", ACCEPTANCE)):
+        for name in table.names():
+            cls = params_type(table.get(name))
+            out[f"{kind} {name}"] = None if cls is None else params_schema(cls)
+    return out
+
+
+def _limits(info: dict[str, Any]) -> str:
+    parts = []
+    if "low" in info:
+        parts.append(f"{'>' if info.get('low_open') else '>='} {info['low']:g}")
+    if "high" in info:
+        parts.append(f"<= {info['high']:g}")
+    for key, value in info.items():
+        if key not in ("type", "default", "required", "low", "high", "low_open"):
+            parts.append(f"{key} {value!r}")
+    return ", ".join(parts)
+
+
+def _programs(args: argparse.Namespace) -> int:
+    schema = program_params()
+    if args.json:
+        print(json.dumps(schema, indent=2))
+        return 0
+    lines: list[str] = []
+    for name, fields in schema.items():
+        if fields is None:
+            lines.append(f"{name}: params not declared (not checked)")
+            continue
+        lines.append(f"{name}:" + ("" if fields else " no params"))
+        for field, info in fields.items():
+            default = "required" if info.get("required") else f"default {info['default']!r}"
+            limits = _limits(info)
+            lines.append(
+                f"  {field}: {info['type']}, {default}" + (f", {limits}" if limits else "")
+            )
+    print("\n".join(lines))
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.programs:
+        return _programs(args)
     if args.check is not None:
         return _check(args)
     if args.models:

@@ -36,7 +36,7 @@ import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import SimpleNamespace
-from typing import Any, Literal
+from typing import Any
 
 import cv2
 import numpy as np
@@ -88,37 +88,29 @@ class DepthParams(SourceParams):
 
 @dataclass(frozen=True)
 class TableParams:
-    """The table plane (a sensor parameter) and the object separation on the SPG."""
+    """The table plane (a sensor parameter; None: found by the representation) and the
+    object separation of the representation (``_representation``)."""
 
-    table_z_m: float = 0.0
-    table_margin_m: float = param(0.004, low=0.0)
-    min_object_points: int = param(30, low=1)
+    table_z_m: float | None = None
+    table_margin_m: float = param(0.003, low=0.0)
+    gap_m: float = param(0.012, low=0.0, low_open=True)
     m: int = param(12, low=1)
-    gap_m: float = param(0.01, low=0.0, low_open=True)
+    min_object_points: int = param(30, low=1)
 
 
 @dataclass(frozen=True)
-class SegmentParams(TableParams):
-    """Surface segmentation (``segment_surfaces``) of each object."""
-
-    curvature_threshold: float | None = param(None, low=0.0)
-    angle_deg: float | None = param(None, low=0.0, high=180.0, low_open=True)
-    min_points: int | None = param(None, low=1)
-    seeds: Literal["planar", "all"] | None = None
-
-
-@dataclass(frozen=True)
-class CurvatureParams(SegmentParams):
-    """``surface_curvature`` (the table and object separation unless ``drop_table = false``)."""
+class CurvatureParams(TableParams):
+    """``surface_curvature`` (objects of the representation unless ``drop_table = false``)."""
 
     drop_table: bool = True
+    curvature_threshold: float | None = param(None, low=0.0)
 
 
 @dataclass(frozen=True)
-class VertexParams(SegmentParams):
-    """``vertex_detector``: plane-triple vertexes."""
+class VertexParams(TableParams):
+    """``vertex_detector``: vertexes of faces of at least ``min_points`` points."""
 
-    vertex_tolerance_m: float = param(0.0, low=0.0)
+    min_points: int = param(20, low=1)
     min_angle_deg: float = param(30.0, low=0.0, high=90.0)
 
 
@@ -132,7 +124,7 @@ class ControlPointParams(VertexParams):
 
 
 @dataclass(frozen=True)
-class SphereParams(SegmentParams):
+class SphereParams(TableParams):
     """``sphere_detector``."""
 
     min_radius_m: float = param(0.005, low=0.0)
