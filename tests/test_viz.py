@@ -49,6 +49,7 @@ def last(rec: dict[str, dict[str, list[Any]]], entity: str, column: str) -> Any:
     [
         ("spawn", RerunSpec("spawn", None, False)),
         ("spawn,normals", RerunSpec("spawn", None, True)),
+        ("spawn,all,normals", RerunSpec("spawn", None, True, True)),
         ("connect:localhost:9876", RerunSpec("connect", "rerun+http://localhost:9876/proxy")),
         ("connect:rerun+http://10.0.0.2:9876/proxy",
          RerunSpec("connect", "rerun+http://10.0.0.2:9876/proxy")),
@@ -252,3 +253,24 @@ def test_fallbacks_streams_and_hypotheses_without_a_simulator(tmp_path: Path) ->
     np.testing.assert_allclose(np.linalg.norm(strips[:, 0] - strips[:, 1], axis=1), 0.05, atol=1e-6)
     label = last(rec, "/world/localization/cube/hypotheses/0", "LineStrips3D:labels")
     assert "score 0.900 votes 7" in label[0]
+
+
+@pytest.mark.slow
+def test_robot_meshes_are_posed_as_mujoco_poses_them() -> None:
+    import mujoco
+
+    from mks_sim.sim import names
+    from mks_sim.sim.world import build_world
+    from mks_sim.viz.scene import body_to_world, geom_meshes
+
+    world = build_world("scene2", seed=0)
+    world.data.qpos[world.model.joint(names.ARM_JOINTS[1]).qposadr[0]] += 0.4  # not home
+    mujoco.mj_forward(world.model, world.data)
+    meshes = geom_meshes(world.model, names.ROBOT_PREFIX)
+    assert len({g.body for g in meshes}) >= 10 and any(g.name.endswith("finger_tip_1")
+                                                      for g in meshes)  # fmt: skip
+    for g in meshes:
+        T = body_to_world(world.data, g.body_id) @ g.geom_to_body  # what the recording draws
+        np.testing.assert_allclose(T[:3, 3], world.data.geom_xpos[g.geom_id], atol=1e-9)
+        np.testing.assert_allclose(T[:3, :3], world.data.geom_xmat[g.geom_id].reshape(3, 3),
+                                   atol=1e-9)  # fmt: skip

@@ -3,7 +3,10 @@
 Sense (camera views, stereo pair, range finder), the SPG, curvature separation, vertexes and
 control points, Hough localization and refinement, then grasp the sphere, the cube and the
 part in turn. Prints a summary table (estimate vs truth, errors, grasp result per object)
-and writes a report folder: one image per stage and a video of the grasps.
+and writes a report folder: one image per stage, a video of the grasps and, when the ``viz``
+extra is installed, ``demo.rrd``: a Rerun recording of every stage (``--rerun SPEC`` sends it
+elsewhere, ``--no-rerun`` skips it; ``docs/visualization.md``). On its ``episode`` timeline
+0 is scene 2, 1 the part.
 
 Ground truth is read only to fill the "truth" and "error" columns and to judge the grasps.
 """
@@ -11,6 +14,7 @@ Ground truth is read only to fill the "truth" and "error" columns and to judge t
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import logging
 import sys
@@ -22,6 +26,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from mks_sim.viz import NullRecorder, Recorder, RerunSpec, add_rerun_argument, open_recorder
 
 HELP = "run the whole system on scene 2 and the part: sense, SPG, Hough, grasp; write a report"
 
@@ -35,6 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="object placement and noise seed")
     parser.add_argument("--no-video", action="store_true", help="skip the grasp video")
     parser.add_argument("--no-grasp", action="store_true", help="sense and localize only")
+    add_rerun_argument(parser)  # default: OUT/demo.rrd when rerun-sdk is installed
+    parser.add_argument("--no-rerun", action="store_true", help="write no demo.rrd")
 
 
 @dataclass
@@ -67,6 +75,7 @@ class Demo:
         self.rows: dict[str, ObjectRow] = {}
         self.images: list[str] = []
         self.notes: list[str] = []
+        self.recorder: Recorder = NullRecorder()
         self.bar = tqdm(total=14, desc="demo", unit="stage", file=sys.stderr)
 
     def stage(self, name: str, fn: Callable[[], Any]) -> Any:
@@ -167,11 +176,14 @@ def _localize(demo: Demo, world: Any, devices: Any, obj: str) -> Any:
 
     row = demo.rows.setdefault(obj, ObjectRow(obj))
     t0 = time.perf_counter()
-    result = localize_object(world, obj, devices, rng=np.random.default_rng(demo.seed))
+    result = localize_object(world, obj, devices, rng=np.random.default_rng(demo.seed),
+                             graph=demo.recorder.tap_graph(None))  # fmt: skip
+    demo.recorder.log_localization(result, world=world)
     row.localize_s = time.perf_counter() - t0
     row.provenance = dict(result.provenance)
     row.estimate = result.object_to_world
     row.truth = truth.object_to_world(world, obj)  # evaluation only: the summary's truth column
+    demo.recorder.log_truth(obj, row.truth, world=world)
     err = localization_error(world, obj, result.object_to_world)
     row.position_mm, row.rotation_deg = err.position_mm, err.rotation_deg
     if not result.found:
@@ -186,7 +198,7 @@ def _grasp(demo: Demo, world: Any, devices: Any, obj: str, renderer_hook: Any) -
     from mks_sim.tasks.episode import EpisodeAssembly
     from mks_sim.tasks.spec import task_for_object
 
-    episode = EpisodeAssembly(task_for_object(obj))
+    episode = EpisodeAssembly(task_for_object(obj), recorder=demo.recorder)
     episode.initialize_episode(world, np.random.default_rng([demo.seed, 3]), devices=devices,
                                on_frame=renderer_hook, frame_every=4)  # fmt: skip
     ok, retries, reason = episode.run()
@@ -238,20 +250,31 @@ def _frame_hook(demo: Demo, world: Any) -> tuple[Any, Any]:
     return renderer, hook
 
 
-def run_demo(out: Path, seed: int = 0, video: bool = True, grasp: bool = True) -> dict[str, Any]:
-    """Run the demo, write the report into ``out``; returns the summary document."""
+def run_demo(
+    out: Path,
+    seed: int = 0,
+    video: bool = True,
+    grasp: bool = True,
+    rerun: RerunSpec | None = None,
+) -> dict[str, Any]:
+    """Run the demo, write the report into ``out`` (and the recording ``rerun`` asks for);
+    returns the summary document."""
     from mks_sim.devices.factory import make_devices
     from mks_sim.sensing import SensorGraph
     from mks_sim.sim.world import build_world
 
     out.mkdir(parents=True, exist_ok=True)
     demo = Demo(out, seed, video, grasp)
+    demo.recorder = open_recorder(rerun, "mks_sim demo")
     t_start = time.perf_counter()
     graph = SensorGraph.from_dir()
     try:
         # --- scene 2: the cube with the sphere atop it ------------------------------------
         world = build_world("scene2", seed=seed)
-        with make_devices(world.model, world.data, np.random.default_rng([seed, 1])) as devices:
+        demo.recorder.set_episode(0)
+        demo.recorder.log_world(world)
+        with make_devices(world.model, world.data, np.random.default_rng([seed, 1])) as devs:
+            devices = demo.recorder.tap_devices(devs)  # each reading recorded (when on)
             demo.stage("scene2: cameras", lambda: _sense_images(demo, devices, "scene2"))
             demo.stage("scene2: range scan", lambda: _scan(demo, devices, "scene2"))
             snap = graph.snapshot(devices)
@@ -277,7 +300,10 @@ def run_demo(out: Path, seed: int = 0, video: bool = True, grasp: bool = True) -
                     renderer.close()
         # --- the industrial part ----------------------------------------------------------
         world = build_world("part", seed=seed)
-        with make_devices(world.model, world.data, np.random.default_rng([seed, 2])) as devices:
+        demo.recorder.set_episode(1)
+        demo.recorder.log_world(world)
+        with make_devices(world.model, world.data, np.random.default_rng([seed, 2])) as devs:
+            devices = demo.recorder.tap_devices(devs)
             demo.stage("part: cameras", lambda: _sense_images(demo, devices, "part"))
             demo.stage("part: range scan", lambda: _scan(demo, devices, "part"))
             snap = graph.snapshot(devices)
@@ -304,6 +330,7 @@ def run_demo(out: Path, seed: int = 0, video: bool = True, grasp: bool = True) -
             demo.bar.update()
     finally:
         demo.bar.close()
+        demo.recorder.close()
     return _summary(demo, time.perf_counter() - t_start, video_path)
 
 
@@ -364,6 +391,9 @@ def _summary(demo: Demo, seconds: float, video: Any) -> dict[str, Any]:
     md += [f"![{name}]({name})" for name in demo.images]
     if video is not None:
         md += ["", f"Video of the grasps: [{Path(video).name}]({Path(video).name})"]
+    if (demo.out / "demo.rrd").is_file():
+        md += ["", "Every stage as a Rerun recording: [demo.rrd](demo.rrd) (`rerun demo.rrd`; "
+               "entity paths in the project's docs/visualization.md)"]  # fmt: skip
     if demo.notes:
         md += ["", "## Notes", "", *[f"- {n}" for n in demo.notes]]
     (demo.out / "README.md").write_text("\n".join(md) + "\n")
@@ -373,7 +403,11 @@ def _summary(demo: Demo, seconds: float, video: Any) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     out = Path(args.out) if args.out else Path("reports") / f"demo-{stamp}"
-    doc = run_demo(out, seed=args.seed, video=not args.no_video, grasp=not args.no_grasp)
+    rerun = args.rerun
+    if rerun is None and not args.no_rerun and importlib.util.find_spec("rerun") is not None:
+        rerun = RerunSpec("save", str(out / "demo.rrd"))
+    doc = run_demo(out, seed=args.seed, video=not args.no_video, grasp=not args.no_grasp,
+                   rerun=rerun)  # fmt: skip
     print(doc["table"])
     for note in doc["notes"]:
         print(f"note: {note}")

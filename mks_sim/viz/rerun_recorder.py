@@ -25,8 +25,8 @@ from mks_sim.sensing import SensorGraph
 from mks_sim.sim import names
 from mks_sim.viz.recorder import DeviceTap, GraphTap, as_matrix
 from mks_sim.viz.scene import (
+    body_to_world,
     geom_meshes,
-    geom_to_world,
     object_clouds,
     object_mesh,
     transform_segments,
@@ -48,10 +48,10 @@ _CURVED = (214, 39, 40)
 _CHOSEN = (0, 200, 0)
 _TRUTH = (255, 215, 0)
 _HYPOTHESIS = (150, 150, 150)
-# Re-sensing every 0.2 s during an approach would redraw the SPG and segmentation each time
-# (~1 MB of edges per snapshot, ~0.5 s of grouping): drawn at most this often (sim seconds),
-# and for the first snapshot of every episode / attempt.
-GROUPING_PERIOD_S = 1.0
+# Re-sensing every 0.2 s during an approach would store every scan, stream and SPG (~1.5 MB
+# per snapshot): point clouds are drawn at most this often (simulated seconds), and for the
+# first snapshot of every episode / attempt, unless the spec says ",all".
+CLOUD_PERIOD_S = 1.0
 # Self-hit rays have no range (the device reports none): drawn this long from the mount.
 _SELF_HIT_RAY_M = 0.1
 _LEVELS = {"INFO": rr.TextLogLevel.INFO, "WARN": rr.TextLogLevel.WARN,
@@ -83,12 +83,13 @@ class RerunRecorder:
         self._snapshots: list[Any] = []
         self._robot: list[Any] = []
         self._robot_joints: list[str] = []
+        self._robot_bodies: list[tuple[str, int]] = []
         self._time = 0.0
         self._world: Any = None
         self._devices: dict[str, DeviceTap] = {}
         self._read: set[str] = set()
         self._stereo: dict[str, Any] = {}
-        self._last_grouping = -np.inf
+        self._last_cloud: dict[str, float] = {}
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
     # ------------------------------------------------------------------ timelines
@@ -98,7 +99,7 @@ class RerunRecorder:
         self.rec.set_time("sim_time", duration=self._time)
 
     def set_episode(self, episode: int | None, attempt: int | None = None) -> None:
-        self._last_grouping = -np.inf
+        self._last_cloud.clear()
         if episode is not None:
             self.rec.set_time("episode", sequence=int(episode))
         if attempt is not None:
@@ -112,7 +113,12 @@ class RerunRecorder:
     # ------------------------------------------------------------------ taps
 
     def tap_devices(self, devices: Mapping[str, Any]) -> Mapping[str, Any]:
-        self._devices = {name: DeviceTap(dev, name, self.log_reading) for name, dev in devices.items()}
+        # A device tapped already (the demo taps, then hands the devices to an episode that
+        # taps again) is kept as it is: each reading is logged once.
+        self._devices = {
+            name: dev if isinstance(dev, DeviceTap) else DeviceTap(dev, name, self.log_reading)
+            for name, dev in devices.items()
+        }
         return self._devices
 
     def log_camera_views(self) -> None:
@@ -170,7 +176,18 @@ class RerunRecorder:
                 self.rec.log("stereo/disparity", rr.DepthImage(np.nan_to_num(d, nan=0.0),
                                                                meter=1.0))  # fmt: skip
 
+    def _due(self, kind: str) -> bool:
+        """True when a point cloud of ``kind`` should be drawn now (see CLOUD_PERIOD_S)."""
+        if self.spec.every or self._time - self._last_cloud.get(kind, -np.inf) >= (
+            CLOUD_PERIOD_S - 1e-9
+        ):
+            self._last_cloud[kind] = self._time
+            return True
+        return False
+
     def _log_scans(self, device: str, scans: Sequence[Any]) -> None:
+        if not self._due(device):
+            return
         for scan in scans:
             base = f"world/{device}/view_{int(scan.view)}"
             color = _PALETTE[int(scan.view) % len(_PALETTE)]
@@ -202,14 +219,22 @@ class RerunRecorder:
         self._world = world
         self._sync_time(world)
         self._robot = geom_meshes(world.model, names.ROBOT_PREFIX)
+        # Meshes hang under their body's entity (geom-in-body transform, static); only the
+        # bodies move. Names are flattened ("jaco_arm/b_1" -> "jaco_arm.b_1") so that no
+        # body's entity is the parent of another's (their poses are world poses).
         for g in self._robot:
+            path = f"world/robot/{_flat(g.body)}/{_flat(g.name)}"
             color = (255 * g.rgba[:3]).astype(np.uint8)
+            T = g.geom_to_body
+            self.rec.log(path, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]),
+                         static=True)  # fmt: skip
             self.rec.log(
-                f"world/robot/{g.name}",
+                path,
                 rr.Mesh3D(vertex_positions=g.vertices, triangle_indices=g.faces,
                           albedo_factor=color),
                 static=True,
             )  # fmt: skip
+        self._robot_bodies = sorted({(g.body, g.body_id) for g in self._robot})
         m = world.model
         self._robot_joints = [
             m.joint(j).name for j in range(m.njnt)
@@ -219,10 +244,10 @@ class RerunRecorder:
 
     def log_robot(self, world: Any) -> None:
         self._sync_time(world)
-        for g in self._robot:
-            T = geom_to_world(world.data, g.geom_id)
-            self.rec.log(f"world/robot/{g.name}", rr.Transform3D(translation=T[:3, 3],
-                                                                mat3x3=T[:3, :3]))  # fmt: skip
+        for body, bid in self._robot_bodies:
+            T = body_to_world(world.data, bid)
+            self.rec.log(f"world/robot/{_flat(body)}",
+                         rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))  # fmt: skip
         for j in self._robot_joints:
             q = float(world.data.joint(j).qpos[0])
             self.rec.log(f"robot/joints/{j.removeprefix(names.ROBOT_PREFIX)}", rr.Scalars(q))
@@ -258,11 +283,7 @@ class RerunRecorder:
             except MksError:
                 continue
             self._log_stream(sensor, stream, served)
-        if (
-            "Range_Points" in snap.provenance
-            and self._time - self._last_grouping >= GROUPING_PERIOD_S - 1e-9
-        ):
-            self._last_grouping = self._time
+        if "Range_Points" in snap.provenance and self._due("grouping"):
             self._log_grouping(snap)
 
     def _log_stream(self, sensor: str, stream: Any, served: str) -> None:
@@ -288,6 +309,8 @@ class RerunRecorder:
             self.rec.log(path, rr.Points3D(xyz, colors=colors, radii=0.001))
             return
         big = len(data) > 200
+        if big and not self._due(f"sensor:{sensor}"):
+            return
         self.rec.log(
             path,
             rr.Points3D(xyz, radii=0.001 if big else 0.003,
@@ -532,6 +555,11 @@ class RerunRecorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _flat(name: str) -> str:
+    """A MuJoCo name as one entity-path part (``jaco_arm/b_1`` -> ``jaco_arm.b_1``)."""
+    return name.strip("/").replace("/", ".") or "root"
 
 
 def _undirected(adjacency: Any) -> np.ndarray:

@@ -15,7 +15,15 @@ from numpy.typing import NDArray
 from mks_sim.geometry.meshes import box_mesh, uv_sphere
 from mks_sim.lowlevel.spg import SpatialProximityGraph
 
-__all__ = ["GeomMesh", "body_mesh", "feature_edges", "geom_meshes", "object_mesh", "wireframe"]
+__all__ = [
+    "GeomMesh",
+    "body_mesh",
+    "body_to_world",
+    "feature_edges",
+    "geom_meshes",
+    "object_mesh",
+    "wireframe",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -26,7 +34,10 @@ class GeomMesh:
 
     Attributes:
         name: the geom's name (``geom_<id>`` when unnamed).
-        geom_id: its id in the compiled model (to read ``data.geom_xpos/xmat``).
+        geom_id: its id in the compiled model.
+        body: the name of the body it is fixed to.
+        body_id: that body's id (to read ``data.xpos/xmat``).
+        geom_to_body: (4, 4) the geom frame in the body frame (constant).
         vertices: (V, 3) float vertices in the geom frame, metres.
         faces: (F, 3) int triangles.
         rgba: (4,) float colour.
@@ -34,6 +45,9 @@ class GeomMesh:
 
     name: str
     geom_id: int
+    body: str
+    body_id: int
+    geom_to_body: FloatArray
     vertices: FloatArray
     faces: NDArray[np.int64]
     rgba: FloatArray
@@ -76,15 +90,26 @@ def geom_meshes(
         if tri is None:
             continue
         name = model.geom(g).name or f"geom_{g}"
-        out.append(GeomMesh(name, g, tri[0], tri[1], np.asarray(model.geom_rgba[g], dtype=float)))
+        bid = int(model.geom_bodyid[g])
+        out.append(GeomMesh(name, g, body, bid, _geom_to_body(model, g), tri[0], tri[1],
+                            np.asarray(model.geom_rgba[g], dtype=float)))  # fmt: skip
     return out
 
 
-def geom_to_world(data: mujoco.MjData, geom_id: int) -> FloatArray:
-    """(4, 4) pose of a geom in the world (after ``mj_kinematics``)."""
+def _geom_to_body(model: mujoco.MjModel, g: int) -> FloatArray:
+    R = np.zeros(9)
+    mujoco.mju_quat2Mat(R, np.asarray(model.geom_quat[g], dtype=float))
     T = np.eye(4)
-    T[:3, :3] = np.asarray(data.geom_xmat[geom_id], dtype=float).reshape(3, 3)
-    T[:3, 3] = data.geom_xpos[geom_id]
+    T[:3, :3] = R.reshape(3, 3)
+    T[:3, 3] = model.geom_pos[g]
+    return T
+
+
+def body_to_world(data: mujoco.MjData, body_id: int) -> FloatArray:
+    """(4, 4) pose of a body in the world (after ``mj_kinematics``)."""
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(data.xmat[body_id], dtype=float).reshape(3, 3)
+    T[:3, 3] = data.xpos[body_id]
     return T
 
 
@@ -100,9 +125,8 @@ def body_mesh(model: mujoco.MjModel, body: str) -> tuple[FloatArray, NDArray[np.
         tri = _geom_triangles(model, g)
         if tri is None:
             continue
-        R = np.zeros(9)
-        mujoco.mju_quat2Mat(R, np.asarray(model.geom_quat[g], dtype=float))
-        verts.append(tri[0] @ R.reshape(3, 3).T + model.geom_pos[g])
+        T = _geom_to_body(model, g)
+        verts.append(tri[0] @ T[:3, :3].T + T[:3, 3])
         faces.append(tri[1] + n)
         n += len(tri[0])
     if not verts:

@@ -7,8 +7,11 @@ Forms (one string, validated before any work starts):
 - ``connect:ADDR`` — stream to a running viewer (``rerun+http://HOST:PORT/proxy``, or
   ``HOST:PORT`` which is completed to that form).
 
-A trailing ``,normals`` (e.g. ``save:run.rrd,normals``) also logs the segmentation's surface
-normals, which are many arrows and off by default.
+Trailing options, comma-separated: ``,normals`` (e.g. ``save:run.rrd,normals``) also logs the
+segmentation's surface normals (many arrows, off by default); ``,all`` logs the point clouds
+of every snapshot (by default range scans, large point streams and the SPG / segmentation are
+drawn at most once per simulated second within an episode attempt: a grasp re-senses every
+0.2 s).
 
 Rerun itself (``rerun-sdk``, the ``viz`` extra) is imported only by :func:`open_recorder` for a
 spec that asks for it: with no ``--rerun`` nothing of it is loaded.
@@ -28,7 +31,7 @@ from mks_sim.viz.recorder import NullRecorder, Recorder
 __all__ = ["RerunSpec", "add_rerun_argument", "open_recorder", "parse_rerun_spec"]
 
 MODES = ("save", "spawn", "connect")
-OPTIONS = ("normals",)
+OPTIONS = ("normals", "all")
 _HOST_PORT = re.compile(r"^[A-Za-z0-9_.\-]+:\d{1,5}$")
 
 
@@ -40,11 +43,13 @@ class RerunSpec:
         mode: ``save`` | ``spawn`` | ``connect``.
         target: the ``.rrd`` path (save), the gRPC URL (connect), or None (spawn).
         normals: also log surface normals (arrows).
+        every: log the point clouds of every snapshot (no rate limit).
     """
 
     mode: str
     target: str | None = None
     normals: bool = False
+    every: bool = False
 
 
 def parse_rerun_spec(text: str) -> RerunSpec:
@@ -54,29 +59,33 @@ def parse_rerun_spec(text: str) -> RerunSpec:
         SpecError: bad form, a save path not ending in ``.rrd``, or a folder that cannot be
             written.
     """
-    body, normals = text.strip(), False
+    body, options = text.strip(), set[str]()
     head, sep, tail = body.rpartition(",")
-    if sep and tail in OPTIONS:
-        body, normals = head, True
+    while sep and tail in OPTIONS:
+        body, options = head, options | {tail}
+        head, sep, tail = body.rpartition(",")
+    normals, every = "normals" in options, "all" in options
     mode, colon, target = body.partition(":")
-    expected = "expected save:PATH.rrd, spawn or connect:HOST:PORT (optionally ',normals')"
+    expected = (
+        "expected save:PATH.rrd, spawn or connect:HOST:PORT (optionally ',normals', ',all')"
+    )
     if mode not in MODES:
         raise SpecError(f"--rerun: {expected}, got {text!r}")
     if mode == "spawn":
         if colon:
             raise SpecError(f"--rerun: spawn takes no argument; {expected}, got {text!r}")
-        return RerunSpec("spawn", None, normals)
+        return RerunSpec("spawn", None, normals, every)
     if not target:
         raise SpecError(f"--rerun: {mode} needs an argument; {expected}, got {text!r}")
     if mode == "save":
-        return RerunSpec("save", str(_check_save_path(Path(target), text)), normals)
+        return RerunSpec("save", str(_check_save_path(Path(target), text)), normals, every)
     if _HOST_PORT.match(target):
         target = f"rerun+http://{target}/proxy"
     elif not target.startswith(("rerun://", "rerun+http://", "rerun+https://")):
         raise SpecError(
             f"--rerun: connect expected HOST:PORT or a rerun+http:// URL, got {target!r}"
         )
-    return RerunSpec("connect", target, normals)
+    return RerunSpec("connect", target, normals, every)
 
 
 def _check_save_path(path: Path, text: str) -> Path:
@@ -110,7 +119,8 @@ def add_rerun_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--rerun", type=_spec_type, default=None, metavar="SPEC",
         help="record every stage with Rerun: save:PATH.rrd | spawn | connect:HOST:PORT "
-        "(append ',normals' for surface normals); needs the viz extra",
+        "(append ',normals' for surface normals, ',all' for every snapshot's clouds); "
+        "needs the viz extra",
     )  # fmt: skip
 
 
