@@ -222,7 +222,3 @@ class TranslationHough3D:
             correspondences=np.column_stack([det_idx, mod_idx]),
             rmse=rmse,
         )
-
-
-# Registers the model-database kinds "rotinv" and "hough3d" (the database imports this module).
-import mks_sim.models.hough_kinds  # noqa: E402, F401

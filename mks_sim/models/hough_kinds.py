@@ -13,8 +13,10 @@ Entry format (TOML, ``tasks/models/*.toml``)::
     description = "..."             # optional
     unit = "paper"                  # optional, informative
 
-Importing :mod:`mks_sim.models.rotinv` or :mod:`mks_sim.models.hough3d` registers both kinds
-(the database imports those modules when it meets the kinds).
+The database's :data:`~mks_sim.models.database.MODEL_KINDS` table names these loaders
+(``"mks_sim.models.hough_kinds:load_rotinv_model"``, ...); importing a module registers
+nothing, and neither :mod:`~mks_sim.models.rotinv` nor :mod:`~mks_sim.models.hough3d` imports
+this one (no import circle).
 """
 
 from __future__ import annotations

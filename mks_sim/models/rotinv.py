@@ -522,7 +522,3 @@ class RotationInvariantHough:
         src = np.vstack([self.points[mod_idx], self.reference])
         dst = np.vstack([D[det_idx], pos])
         return rigid_fit(src, dst)
-
-
-# Registers the model-database kinds "rotinv" and "hough3d" (the database imports this module).
-import mks_sim.models.hough_kinds  # noqa: E402, F401
