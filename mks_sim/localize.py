@@ -47,7 +47,12 @@ from mks_sim.lowlevel.grouping import (
     segment_surfaces,
 )
 from mks_sim.models.pose import PoseHypothesis
-from mks_sim.models.refine import ModelSurface, detect_symmetries, score_pose, verify_hypotheses
+from mks_sim.models.refine import (
+    ModelSurface,
+    batch_inlier_fractions,
+    detect_symmetries,
+    verify_hypotheses,
+)
 
 if TYPE_CHECKING:
     from mks_sim.geometry.meshes import Mesh
@@ -444,10 +449,11 @@ def vertex_hypotheses(
     # Rank by votes; break ties among the first ``keep`` by a quick inlier fraction.
     sub = scene_points[:: max(1, len(scene_points) // 100)]
     by_votes = sorted(out, key=lambda o: -o[0])[:keep]
-    ranked = sorted(
-        by_votes,
-        key=lambda o: (-o[0], -score_pose(model.surface, sub, o[1], vote_distance / 2)[1]),
+    quick = batch_inlier_fractions(
+        model.surface, sub, np.stack([o[1] for o in by_votes]), vote_distance / 2
     )
+    order = sorted(range(len(by_votes)), key=lambda k: (-by_votes[k][0], -quick[k]))
+    ranked = [by_votes[k] for k in order]
     ref = model.vertexes.mean(axis=0)
     return [
         PoseHypothesis(T, T[:3, :3] @ ref + T[:3, 3], votes=v, correspondences=c)
@@ -531,8 +537,12 @@ def plane_pair_hypotheses(
                 continue
             if not (np.all(np.isfinite(t)) and np.all(np.isfinite(R))):
                 continue
-            T = make_transform(R, t)
-            out.append((score_pose(model.surface, sub, T, inlier_distance)[1], T))
+            out.append((0.0, make_transform(R, t)))
+    if out:
+        quick = batch_inlier_fractions(
+            model.surface, sub, np.stack([o[1] for o in out]), inlier_distance
+        )
+        out = [(float(q), o[1]) for q, o in zip(quick, out)]
     out.sort(key=lambda o: -o[0])
     ref = model.vertexes.mean(axis=0)
     return [PoseHypothesis(T, T[:3, :3] @ ref + T[:3, 3], votes=0) for _, T in out[:keep]]

@@ -2,18 +2,21 @@
 
 :func:`localize_object` runs the paper's execution flow (section 4, steps 1-7) for one object:
 
-1. **Invoke the model.** The object's model comes from the model database
-   (``tasks/models/*.toml``: ``cube`` -> ``cube_5cm``, ``sphere`` -> ``sphere_3cm``,
-   ``part`` -> ``part``); the model names its logical sensor.
+1. **Invoke the model.** The object comes from the model database
+   (``mks_sim.models.objects.load_object``: mesh, localization kinds, logical sensor); its
+   default KIND picks the pipeline (``sphere`` or the polyhedral surface of its mesh, plus
+   the ``rotinv`` model it names: the cube's vertexes, the part's control points).
 2. **Activate the logical sensors it needs** through a :class:`~mks_sim.sensing.SensorGraph`
    snapshot on the devices: only the model's sensor and its inputs
    (``graph.required([sensor])``) run; a failed device is replaced by the sensor's alternate
    (``Range_Points`` served by ``Stereo_Points`` when the range finder fails), which the
    snapshot's provenance reports. Ground truth is never read.
-3. **k-d tree and SPG** of the 3-D points (``Range_Points``); the supporting table plane is
-   found by RANSAC and removed, the rest splits into objects by SPG connectivity.
-4. **Grouping**: normals, planar regions, vertexes (the table is the face an object rests on);
-   curved regions and their sphere fits for the sphere (``Sphere_Detector``).
+3. **The snapshot's representation** of the points (``snap.representation``,
+   :mod:`mks_sim.localization.representation`): k-d tree, the table plane (RANSAC near its
+   nominal height) and the objects above it, their SPG, normals, curvature and planar /
+   curved segmentation, each computed once and shared with the description sensors.
+4. **Grouping**: object segments (SPG components; spheres set aside), their planar regions
+   and vertexes (the table is the face an object rests on).
 5. **Matching**: vertex-frame Hough votes / the rotation-invariant Hough of section 2.2.1 for the
    polyhedral models (cube, industrial part, :func:`mks_sim.localize.localize_cloud`); the
    sphere model picks the ``Sphere_Detector`` rows of its radius.
@@ -41,15 +44,19 @@ from __future__ import annotations
 import functools
 import logging
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from mks_sim.errors import DataError, MksError, NotFound, SensorFailure
+from mks_sim.errors import MksError, NotFound, SensorFailure
+from mks_sim.geometry.points import fibonacci_sphere
+from mks_sim.localization.representation import Representation, RepresentationConfig
+from mks_sim.localization.verify import Consistency, consistency, rank
 from mks_sim.models.pose import PoseHypothesis
 
 if TYPE_CHECKING:
@@ -58,7 +65,6 @@ if TYPE_CHECKING:
     from mks_sim.sensing import SensorGraph
 
 __all__ = [
-    "OBJECT_MODELS",
     "OBJECT_SCENES",
     "WorkstationLocalization",
     "localize",
@@ -68,26 +74,24 @@ __all__ = [
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
-#: object name -> model-database name.
-OBJECT_MODELS: dict[str, str] = {"cube": "cube_5cm", "sphere": "sphere_3cm", "part": "part"}
 #: object name -> the scene it is localized in (CLI, benchmark).
 OBJECT_SCENES: dict[str, str] = {"cube": "scene2", "sphere": "scene2", "part": "part"}
-#: The logical sensor a built-in model names (used when the database has no entry yet).
-_BUILTIN_SENSORS: dict[str, str] = {
-    "cube": "Vertex_Detector",
-    "sphere": "Sphere_Detector",
-    "part": "Control_Point_Detector",
-}
 POINTS_SENSOR = "Range_Points"
-# A candidate explaining at least this many sensed points (within the inlier distance) makes
-# the support-face hypotheses unnecessary (saves ~1-3 s); below it they compete as well.
-SUPPORT_SKIP_EXPLAINED = 1000
+# An object segment whose points a consistent candidate explains at least this fraction of
+# needs no support-face hypotheses.
+SUPPORT_EXPLAINED_FRACTION = 0.8
 SPHERE_SENSOR = "Sphere_Detector"
 # Spheres of this radius range found by Sphere_Detector are set aside before polyhedral
 # matching (the workstation's spheres are 3 cm; larger fits are curved-region artefacts).
 MIN_EXPLAINED_SPHERE_M = 0.01
 MAX_EXPLAINED_SPHERE_M = 0.05
 TABLE_Z_M = 0.75  # nominal table height: a sensor calibration parameter (sensors/points.toml)
+#: The representation the flow asks the snapshot for: the description sensors' parameters
+#: (``sensors/points.toml``: table height and margin, SPG gap and neighbours), so the
+#: sensors and the matchers share one representation of ``Range_Points``.
+WORKSTATION_REPRESENTATION = RepresentationConfig(
+    table_z_m=TABLE_Z_M, table_margin_m=0.002, gap_m=0.012, m=12
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,54 +142,71 @@ def _default_db() -> ModelDatabase:
     return ModelDatabase.from_dir()
 
 
-@functools.lru_cache(maxsize=4)
-def _builtin_model(obj: str) -> Any:
-    """A built-in polyhedral model in the object's body frame (database entry missing)."""
-    from mks_sim.geometry.meshes import box_mesh, industrial_part_mesh
+_SURFACES: dict[int, tuple[Any, Any]] = {}
+
+
+def _surface_model(name: str, mesh: Any) -> Any:
+    """The polyhedral model (surface samples, corners, faces) of an object's mesh, built once
+    per mesh."""
     from mks_sim.localize import PolyhedralModel
-    from mks_sim.sim import names
 
-    if obj == "cube":
-        return PolyhedralModel.from_mesh(box_mesh(names.CUBE_SIZE_M), "cube_5cm")
-    if obj == "part":
-        return PolyhedralModel.from_mesh(industrial_part_mesh(), "part")
-    from mks_sim.models.sphere import SphereModel
-
-    return SphereModel("sphere_3cm", names.SPHERE_RADIUS_M, 0.004)
+    hit = _SURFACES.get(id(mesh))
+    if hit is None or hit[0] is not mesh:
+        hit = (mesh, PolyhedralModel.from_mesh(mesh, name))
+        _SURFACES[id(mesh)] = hit
+    return hit[1]
 
 
-@functools.lru_cache(maxsize=8)
-def _adapted(obj: str, model_name: str, entry_id: int, entry: Any) -> Any:
-    del entry_id
-    from mks_sim.localize import adapt_model
-    from mks_sim.models.sphere import SphereModel
-
-    if isinstance(entry, SphereModel):
-        return entry
-    return adapt_model(entry, model_name)
-
-
-def _resolve_model(obj: str, db: ModelDatabase | None) -> tuple[str, Any, str, str, Any]:
+def _resolve_model(
+    obj: str, db: ModelDatabase | None, models: Sequence[str | Path] = ()
+) -> tuple[str, Any, str, str, Any]:
     """(model name, localizable model, its logical sensor, source, database entry or None).
 
-    A database entry that carries only recoverable points (the part's four control points, a
-    ``rotinv`` model) names the matcher; the surface for ICP and checks is the object's mesh.
+    The object comes from the model database (``mks_sim.models.objects.load_object``): its
+    default localization KIND picks the pipeline (``sphere``: the sphere model of its radius;
+    otherwise the polyhedral surface of its mesh), its ``sensor`` the logical sensor; a
+    ``rotinv`` model it names (the cube's vertexes, the part's control points) adds the
+    rotation-invariant Hough of that sensor's points.
+
+    Raises:
+        NotFound: unknown object.
     """
-    model_name = OBJECT_MODELS[obj]
+    from mks_sim.models.objects import load_object, object_names
+
     try:
-        entry = (db if db is not None else _default_db()).get(model_name)
+        spec = load_object(obj, models=models)
     except NotFound:
-        entry = None
-    if entry is None:
-        log.info("model %r not in the model database; using the built-in model", model_name)
-        return model_name, _builtin_model(obj), _BUILTIN_SENSORS[obj], "builtin", None
-    sensor = str(getattr(entry, "sensor", None) or _BUILTIN_SENSORS[obj])
-    try:
-        model = _adapted(obj, model_name, id(entry), entry)
-    except (MksError, TypeError) as exc:
-        log.info("model %r: %s; surface from the object's mesh", model_name, exc)
-        return model_name, _builtin_model(obj), sensor, "database points + mesh surface", entry
-    return model_name, model, sensor, "database", entry
+        raise NotFound(
+            f"localize_object: unknown object {obj!r}; expected one of {object_names(models)}"
+        ) from None
+    if db is None:
+        db = _default_db() if not models else _db_for(tuple(str(m) for m in models))
+    sensor = spec.sensor
+    if spec.kind == "sphere":
+        try:
+            entry = spec.model("sphere", db=db)
+        except NotFound:
+            from mks_sim.models.sphere import SphereModel
+
+            r = float(np.max(np.linalg.norm(spec.mesh.vertices, axis=1)))
+            entry = SphereModel(f"{spec.name}_sphere", r, 0.004)
+        return str(getattr(entry, "name", spec.name)), entry, sensor, "database", entry
+    entry = None
+    if "rotinv" in spec.models:
+        try:
+            entry = spec.model("rotinv", db=db)
+        except NotFound as exc:
+            log.info("object %r: %s", obj, exc)
+    name = spec.models.get("rotinv", spec.name)
+    return name, _surface_model(name, spec.mesh), sensor, "database + object mesh", entry
+
+
+@functools.lru_cache(maxsize=4)
+def _db_for(models: tuple[str, ...]) -> ModelDatabase:
+    from mks_sim.models.database import ModelDatabase
+    from mks_sim.models.objects import models_dirs
+
+    return ModelDatabase.from_dirs(models_dirs(models))
 
 
 # --------------------------------------------------------------------------- the flow
@@ -199,18 +220,20 @@ def localize_object(
     rng: np.random.Generator | None = None,
     graph: SensorGraph | None = None,
     db: ModelDatabase | None = None,
+    models: Sequence[str | Path] = (),
 ) -> WorkstationLocalization:
     """Localize one object from the devices' readings (paper section 4, steps 1-7).
 
     Args:
         world: the simulated world (unused by the flow itself: sensing goes through
             ``devices``; kept so the signature matches the grasp episode's ``localize_fn``).
-        object_name: ``cube`` | ``sphere`` | ``part``.
+        object_name: an object of the model database (``cube``, ``sphere``, ``part``, ...).
         devices: device name -> device (``mks_sim.devices.make_devices``); failed or missing
             devices are replaced by the logical sensors' alternates.
         rng: generator for RANSAC and subsampling (default seeded 0).
         graph: the logical sensors (default ``SensorGraph.from_dir()``).
         db: the model database (default ``ModelDatabase.from_dir()``).
+        models: extra model-database folders (``--models``; objects and models).
 
     Returns:
         :class:`WorkstationLocalization` (``found`` False when no candidate passes).
@@ -221,18 +244,13 @@ def localize_object(
     """
     del world  # sensing goes through the devices only; never ground truth
     t0 = time.perf_counter()
-    if object_name not in OBJECT_MODELS:
-        raise NotFound(
-            f"localize_object: unknown object {object_name!r}; expected one of "
-            f"{sorted(OBJECT_MODELS)}"
-        )
     rng = np.random.default_rng(0) if rng is None else rng
     graph = graph if graph is not None else _default_graph()
     timing: dict[str, float] = {}
 
     # 1. the model from the database; it names its logical sensor
     t = time.perf_counter()
-    model_name, model, sensor, source, entry = _resolve_model(object_name, db)
+    model_name, model, sensor, source, entry = _resolve_model(object_name, db, models)
     timing["model"] = time.perf_counter() - t
     diag: dict[str, Any] = {"model": model_name, "model_source": source, "sensor": sensor}
 
@@ -244,23 +262,33 @@ def localize_object(
     except MksError:
         diag["sensors_required"] = [sensor]
     stream = snap.get(POINTS_SENSOR)
-    points = np.asarray(stream.data, dtype=np.float64)[:, :3]
-    points = points[np.all(np.isfinite(points), axis=1)]
     timing["sensing"] = time.perf_counter() - t
-    diag["points"] = len(points)
-    if len(points) < 50:
-        raise SensorFailure(POINTS_SENSOR, f"expected >= 50 points, got {len(points)}")
+    diag["points"] = len(stream.data)
+    if len(stream.data) < 50:
+        raise SensorFailure(POINTS_SENSOR, f"expected >= 50 points, got {len(stream.data)}")
+    t_proc = time.perf_counter()
+    # 3. the snapshot's one low-level representation (shared with the description sensors)
+    t = time.perf_counter()
+    rep = snap.representation(POINTS_SENSOR, WORKSTATION_REPRESENTATION)
+    rep.segmentation  # noqa: B018 - normals, curvature and regions, once
+    timing["representation"] = time.perf_counter() - t
+    points = rep.points
+    diag["representation_points"] = len(points)
 
-    if object_name == "sphere":
-        hyps, extra = _localize_sphere(model, snap, sensor, points, rng, timing)
+    kind = _model_kind(model)
+    diag["kind"] = kind
+    if kind == "sphere":
+        hyps, extra = _localize_sphere(model, snap, sensor, rep, rng, timing)
     else:
-        hyps, extra = _localize_polyhedral(model, entry, snap, sensor, points, rng, timing)
+        hyps, extra = _localize_polyhedral(model, entry, snap, sensor, rep, rng, timing)
+    timing["processing"] = time.perf_counter() - t_proc
     diag.update(extra)
     diag["timing"] = timing
     provenance = dict(snap.provenance)
     found = bool(hyps)
     T = np.asarray(hyps[0].matrix, dtype=np.float64) if found else None
     total = time.perf_counter() - t0
+    timing["total"] = total
     log.info(
         "localize_object(%s): found=%s via %s in %.2f s (%s)",
         object_name,
@@ -284,33 +312,60 @@ def localize_object(
 localize = localize_object
 
 
-def _noise_scale(points: FloatArray, table: Plane | None, spacing: float) -> float:
+def _model_kind(model: Any) -> str:
+    """The model's kind: ``"sphere"`` (a radius), else ``"polyhedral"`` (a surface)."""
+    kind = getattr(model, "kind", None)
+    if isinstance(kind, str):
+        return kind
+    return "sphere" if isinstance(getattr(model, "radius_m", None), float) else "polyhedral"
+
+
+def _noise_scale(table: Plane | None, spacing: float) -> float:
     """Inlier distance for consistency checks: 3 sigma of the table's RANSAC inliers, >= 3 mm."""
-    del points
     if table is not None and table.rmse > 0:
         return float(max(0.003, 3.0 * table.rmse))
     return float(max(0.003, 1.5 * spacing))
 
 
 def find_table(points: FloatArray, rng: np.random.Generator) -> tuple[Plane | None, float]:
-    """The supporting plane (normal up, towards the sensors) and its inlier threshold.
+    """The supporting plane near the nominal table height and its band half-width (the one
+    table finder, :func:`mks_sim.localization.verify.find_table`)."""
+    from mks_sim.localization.verify import find_table as _find
 
-    RANSAC near the nominal table height (a sensor calibration parameter); None if no
-    horizontal plane holds at least 20 % of the points.
-    """
-    from mks_sim.lowlevel.grouping import Plane, fit_plane_ransac
+    plane, thr, _ = _find(points, rng, spacing=0.0, noise=0.0, near_z=TABLE_Z_M)
+    return plane, thr
 
-    low = points[np.abs(points[:, 2] - TABLE_Z_M) < 0.02]
-    if len(low) < max(50, 0.2 * len(points)):
-        return None, 0.0
-    plane, inl = fit_plane_ransac(low, 0.003, rng, iterations=100)
-    if plane.normal[2] < 0:
-        plane = plane.flipped()
-    if plane.normal[2] < 0.95:
-        return None, 0.0
-    resid = plane.distance(low[inl])
-    thr = float(max(0.003, 3.0 * np.sqrt(np.mean(resid**2))))
-    return Plane(plane.normal, plane.offset, float(np.sqrt(np.mean(resid**2)))), thr
+
+def _set_aside_spheres(
+    rep: Representation, snap: Any, d0: float, extra: dict[str, Any]
+) -> NDArray[np.bool_]:
+    """(K,) mask over ``rep.objects``: False on the shells of spheres found by the
+    Sphere_Detector (3 cm-ish radii) and of the database's spheres the detector missed
+    (fixed-radius centre Hough + fit + cap check)."""
+    objects = rep.objects
+    keep = np.ones(len(objects), dtype=bool)
+    try:
+        spheres = np.asarray(snap.get(SPHERE_SENSOR).data, dtype=np.float64).reshape(-1, 4)
+    except MksError as exc:
+        log.info("%s unavailable: %s", SPHERE_SENSOR, exc)
+        spheres = np.zeros((0, 4))
+    band = max(rep.table_threshold, 0.003) + 0.001
+    n = 0
+    for s in spheres:
+        if MIN_EXPLAINED_SPHERE_M <= s[3] <= MAX_EXPLAINED_SPHERE_M:
+            keep &= np.abs(np.linalg.norm(objects - s[:3], axis=1) - s[3]) > band
+            n += 1
+    normals = rep.normals.normals
+    for radius in _known_sphere_radii():
+        sub = np.flatnonzero(keep)
+        seeds = _sphere_hough(objects[sub], radius, normals[sub])
+        found = [h for _, h, chk in _score_spheres(objects[sub], seeds, radius, d0) if chk["ok"]]
+        for h in found:
+            shell = np.abs(np.linalg.norm(objects - h.matrix[:3, 3], axis=1) - radius)
+            keep &= shell > d0 + 0.001
+        n += len(found)
+    extra["spheres_set_aside"] = n
+    return keep
 
 
 def _localize_polyhedral(
@@ -318,74 +373,34 @@ def _localize_polyhedral(
     entry: Any,
     snap: Any,
     sensor: str,
-    points: FloatArray,
+    rep: Representation,
     rng: np.random.Generator,
     timing: dict[str, float],
 ) -> tuple[list[PoseHypothesis], dict[str, Any]]:
-    from mks_sim.localize import localize_cloud
+    from mks_sim.localization.pipeline import object_segments, polyhedral_candidates
 
     extra: dict[str, Any] = {}
-    # 3. table plane, then the k-d tree / SPG / grouping / matching / ICP of localize_cloud
-    t = time.perf_counter()
-    table, table_thr = find_table(points, rng)
-    if table is not None:
-        objects = points[table.distance(points) > table_thr]
-    else:
-        objects = points
-    timing["table"] = time.perf_counter() - t
+    points = rep.points
+    table = rep.table
     extra["table_z_m"] = None if table is None else float(table.offset / table.normal[2])
+    d = _noise_scale(table, rep.spacing)
     # Curved objects explained by the sphere detector (the Surface_Curvature grouping of
     # Table 4-6) are set aside: a sphere resting on the cube would otherwise share its SPG
     # component and crowd the vertex matcher with facets of the sphere.
-    try:
-        spheres = np.asarray(snap.get(SPHERE_SENSOR).data, dtype=np.float64).reshape(-1, 4)
-    except MksError as exc:
-        log.info("%s unavailable: %s", SPHERE_SENSOR, exc)
-        spheres = np.zeros((0, 4))
-    keep = np.ones(len(objects), dtype=bool)
-    for s in spheres:
-        if MIN_EXPLAINED_SPHERE_M <= s[3] <= MAX_EXPLAINED_SPHERE_M:
-            shell = np.abs(np.linalg.norm(objects - s[:3], axis=1) - s[3])
-            keep &= shell > max(table_thr, 0.003) + 0.001
-    extra["spheres_set_aside"] = int(
-        np.sum(
-            (spheres[:, 3] >= MIN_EXPLAINED_SPHERE_M) & (spheres[:, 3] <= MAX_EXPLAINED_SPHERE_M)
-        )
-    )
-    objects = objects[keep]
-    # Spheres of the database's sphere models the detector missed (noisy stereo curvature):
-    # fixed-radius centre Hough + fit + cap check, their shells set aside as well.
     t = time.perf_counter()
-    d0 = _noise_scale(points, table, 0.0)
-    for radius in _known_sphere_radii():
-        seeds = _sphere_hough(objects, radius)
-        found = [h for _, h, chk in _score_spheres(objects, seeds, radius, d0) if chk["ok"]]
-        for h in found:
-            shell = np.abs(np.linalg.norm(objects - h.matrix[:3, 3], axis=1) - radius)
-            objects = objects[shell > d0 + 0.001]
-        extra["spheres_set_aside"] += len(found)
-    timing["known_spheres"] = time.perf_counter() - t
+    keep = _set_aside_spheres(rep, snap, d, extra)
+    objects = rep.objects[keep]
     extra["object_points"] = len(objects)
     if len(objects) < 30:
+        timing["hypotheses"] = time.perf_counter() - t
         return [], extra
-    kwargs: dict[str, Any] = {
-        "table": table if table is not None else "none",
-        "max_hypotheses": 30,
-        "rng": rng,
-    }
-    try:
-        # min_score 0.5: a segment whose vertex hypotheses explain less than half of it also
-        # gets plane-pair hypotheses (few vertexes seen, e.g. noisy stereo points).
-        loc = localize_cloud(model, objects, min_score=0.5, **kwargs)
-    except DataError as exc:  # degenerate plane pair in the fallback: vertexes only
-        log.warning("localize_cloud with plane-pair fallback failed (%s); vertexes only", exc)
-        extra["fallback_error"] = str(exc)
-        loc = localize_cloud(model, objects, min_score=0.0, **kwargs)
-    for k, v in loc.timing.items():
-        if k != "total":
-            timing[k] = v
-    extra["segments"] = [len(s.indices) for s in loc.segments]
-    extra["candidates"] = len(loc.hypotheses)
+    surface = model.surface
+    segments = object_segments(rep, surface.size, keep=keep)
+    timing["hypotheses"] = time.perf_counter() - t
+    timing["verification"] = 0.0
+    candidates, _ = polyhedral_candidates(model, rep, segments, rng=rng, timing=timing)
+    extra["segments"] = [len(s.indices) for s in segments]
+    extra["candidates"] = len(candidates)
 
     # the model's own logical sensor (vertexes / control points): support of the estimate
     t = time.perf_counter()
@@ -394,16 +409,11 @@ def _localize_polyhedral(
         detected = np.asarray(snap.get(sensor).data, dtype=np.float64)[:, :3]
     except MksError as exc:
         log.info("logical sensor %s unavailable: %s", sensor, exc)
-    timing["model_sensor"] = time.perf_counter() - t
     extra["detected_features"] = 0 if detected is None else len(detected)
-
-    d = _noise_scale(points, table, loc.spacing)
     surface_pts = np.asarray(model.surface_points(), dtype=np.float64)
     surface_nrm = np.asarray(model.surface_normals(), dtype=np.float64)
-    candidates = list(loc.hypotheses)
     # 5'. the model's own matcher on its logical sensor: the rotation-invariant Hough of the
     # detected vertexes / control points (section 2.2.1), refined by ICP on the points
-    t = time.perf_counter()
     if detected is not None and len(detected) >= 3 and callable(getattr(entry, "detect", None)):
         try:
             coarse = list(entry.detect(detected))[:10]
@@ -411,52 +421,65 @@ def _localize_polyhedral(
             log.info("%s: rotation-invariant Hough gave nothing: %s", sensor, exc)
             coarse = []
         extra["rotinv_maxima"] = len(coarse)
-        refined = _refine_near(coarse, model, objects, d, rng)
+        timing["hypotheses"] += time.perf_counter() - t
+        t = time.perf_counter()
+        refined = _refine_near(_best_coarse(coarse, model, objects, d, 3), model, objects, d, rng)
         extra["rotinv_refined"] = len(refined)
         candidates += refined
-    timing["rotinv"] = time.perf_counter() - t
+        timing["verification"] += time.perf_counter() - t
+    else:
+        timing["hypotheses"] += time.perf_counter() - t
 
-    # 6. scene consistency of every candidate over the whole cloud
+    # 6. scene consistency of the best candidates over the whole cloud
     t = time.perf_counter()
+    top = _top(candidates, 8)
+    candidates = [candidates[i] for i in top]
     checks = [
-        _consistency(h.matrix, surface_pts, surface_nrm, points, table, d) for h in candidates
+        consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree)
+        for h in candidates
     ]
-    timing["consistency"] = time.perf_counter() - t
-    order, good = _rank(candidates, checks)
+    order, good = rank(candidates, checks)
+    timing["verification"] += time.perf_counter() - t
     extra["inlier_distance_m"] = d
-    extra["checks"] = [checks[i] for i in order[:5]]
-    if table is not None and _wants_support(good, checks, order):
+    # support segments as the sensors separate objects: SPG components over 12 mm edges
+    wide = object_segments(rep, surface.size, keep=keep, gap=rep.gap, merge=False)
+    unexplained = _unexplained_segments(wide, candidates, checks, model, d)
+    if table is not None and unexplained:
         # The object rests on the table: hypotheses from every support face of the model put
         # on the sensed table plane (yaw from the footprint's principal axes and 8 fixed
-        # yaws), refined by ICP and checked like the others; all candidates compete.
+        # yaws), pre-scored in a batch, the best refined by ICP and checked like the others.
         t = time.perf_counter()
-        support = _support_hypotheses(model, objects, table, d, rng)
+        support = _support_hypotheses(
+            model, unexplained, table, rep.table_threshold, d, rng, timing
+        )
+        t2 = time.perf_counter()
         checks2 = [
-            _consistency(h.matrix, surface_pts, surface_nrm, points, table, d) for h in support
+            consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree)
+            for h in support
         ]
         candidates += support
         checks += checks2
-        order, good = _rank(candidates, checks)
-        extra["checks"] = [checks[i] for i in order[:5]]
+        order, good = rank(candidates, checks)
+        timing["verification"] += time.perf_counter() - t2
         extra["support_fallback"] = {
             "candidates": len(support),
-            "ok": int(sum(c["ok"] for c in checks2)),
+            "ok": int(sum(c.ok for c in checks2)),
+            "seconds": time.perf_counter() - t,
         }
-        timing["support_fallback"] = time.perf_counter() - t
-    # Polish: the best-scored candidates (ICP inlier fraction), passed or not, get a full
-    # ICP on the points near them and are checked again (coarse starts stop short).
+    # Polish: the two best-ranked candidates, passed or not, get a full ICP on the points
+    # near them and are checked again (coarse starts stop short).
     t = time.perf_counter()
-    top = sorted(range(len(candidates)), key=lambda i: -np.nan_to_num(candidates[i].score))[:6]
-    polished = _refine_near([candidates[i] for i in top], model, objects, d, rng)
+    polished = _refine_near([candidates[i] for i in order[:2]], model, objects, d, rng)
     if polished:
         checks3 = [
-            _consistency(h.matrix, surface_pts, surface_nrm, points, table, d) for h in polished
+            consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree)
+            for h in polished
         ]
         candidates += polished
         checks += checks3
-        order, good = _rank(candidates, checks)
-        extra["checks"] = [checks[i] for i in order[:5]]
-    timing["polish"] = time.perf_counter() - t
+        order, good = rank(candidates, checks)
+    timing["verification"] += time.perf_counter() - t
+    extra["checks"] = [checks[i].as_dict() for i in order[:5]]
     if good and detected is not None and len(detected):
         T = np.asarray(good[0].matrix)
         model_feats = getattr(model, "vertexes", None)
@@ -465,6 +488,30 @@ def _localize_polyhedral(
             dist = cKDTree(detected).query(mv)[0]
             extra["feature_support"] = int((dist < 4 * d).sum())
     return good, extra
+
+
+def _top(candidates: list[PoseHypothesis], n: int) -> list[int]:
+    """Indices of the ``n`` best-scored candidates (nan last), in that order."""
+    return sorted(range(len(candidates)), key=lambda i: -np.nan_to_num(candidates[i].score))[:n]
+
+
+def _best_coarse(
+    hyps: list[PoseHypothesis], model: Any, objects: FloatArray, d: float, n: int
+) -> list[PoseHypothesis]:
+    """The ``n`` coarse poses explaining the most object points (one batch query)."""
+    from mks_sim.localization.verify import batch_explained
+
+    if len(hyps) <= n or len(objects) == 0:
+        return hyps
+    good = [h for h in hyps if np.asarray(h.matrix).shape == (4, 4)]
+    if len(good) <= n:
+        return good
+    # fraction of the model samples near object points (the scene holds other objects too)
+    tree = cKDTree(objects)
+    pts = np.asarray(model.surface_points(), dtype=np.float64)
+    pts = pts[:: max(1, len(pts) // 300)]
+    score = batch_explained(pts, np.stack([h.matrix for h in good]), tree, 2 * d)
+    return [good[i] for i in np.argsort(-score, kind="stable")[:n]]
 
 
 @functools.lru_cache(maxsize=1)
@@ -482,15 +529,32 @@ def _known_sphere_radii() -> tuple[float, ...]:
     return tuple(sorted(set(radii)))
 
 
-def _wants_support(
-    good: list[PoseHypothesis], checks: list[dict[str, Any]], order: list[int]
-) -> bool:
-    """Run the support-face hypotheses unless a candidate passed with a well-explained scene
-    (>= 1000 points within the inlier distance: most of a 5 cm object's visible surface)."""
-    del good
-    if not order or not checks[order[0]]["ok"]:
-        return True
-    return bool(checks[order[0]]["explained"] < SUPPORT_SKIP_EXPLAINED)
+def _unexplained_segments(
+    segments: list[Any],
+    candidates: list[PoseHypothesis],
+    checks: list[Consistency],
+    model: Any,
+    d: float,
+) -> list[Any]:
+    """The object segments that no consistent candidate explains (less than
+    :data:`SUPPORT_EXPLAINED_FRACTION` of their points within ``d`` of one of the posed
+    models): they get the support-face hypotheses (an object seen only partly, e.g. under
+    the sphere, gives no vertexes). A fraction, not a point count: independent of density."""
+    pts = np.asarray(model.surface_points(), dtype=np.float64)
+    posed = [
+        pts @ np.asarray(h.matrix)[:3, :3].T + np.asarray(h.matrix)[:3, 3]
+        for h, c in zip(candidates, checks)
+        if c.ok
+    ]
+    trees = [cKDTree(P) for P in posed]
+    out = []
+    for seg in segments:
+        covered = np.zeros(len(seg.points), dtype=bool)
+        for tree in trees:
+            covered |= np.isfinite(tree.query(seg.points, distance_upper_bound=d)[0])
+        if covered.mean() < SUPPORT_EXPLAINED_FRACTION:
+            out.append(seg)
+    return out
 
 
 def _refine_near(
@@ -528,26 +592,6 @@ def _refine_near(
     return out
 
 
-def _object_segments(objects: FloatArray, size: float, min_points: int = 60) -> list[FloatArray]:
-    """SPG components (edges <= 12 mm) of the points above the table no larger than the model."""
-    from mks_sim.lowlevel.spg import SpatialProximityGraph
-
-    if len(objects) < min_points:
-        return []
-    spg = SpatialProximityGraph(objects, m=8, threshold=0.012)
-    n, labels = spg.components()
-    counts = np.bincount(labels, minlength=n)
-    out = []
-    for c in np.argsort(-counts):
-        if counts[c] < min_points:
-            break
-        seg = objects[labels == c]
-        xy = seg[:, :2] - seg[:, :2].mean(axis=0)
-        if 2.0 * float(np.max(np.linalg.norm(xy, axis=1))) <= 1.3 * size:
-            out.append(seg)
-    return out
-
-
 def _principal_angle(xy: FloatArray) -> float:
     c = xy - xy.mean(axis=0)
     w, v = np.linalg.eigh(c.T @ c)
@@ -556,20 +600,35 @@ def _principal_angle(xy: FloatArray) -> float:
 
 
 def _support_hypotheses(
-    model: Any, objects: FloatArray, table: Plane, d: float, rng: np.random.Generator
+    model: Any,
+    segments: list[Any],
+    table: Plane,
+    band: float,
+    d: float,
+    rng: np.random.Generator,
+    timing: dict[str, float],
 ) -> list[PoseHypothesis]:
-    """Poses with a support face of the model on the table plane, refined by ICP."""
+    """Poses with a support face of the model on the table plane: all starts of a segment
+    pre-scored in one batch, the best refined by ICP."""
     from mks_sim.geometry.transforms import make_transform
-    from mks_sim.models.refine import ModelSurface, verify_hypotheses
+    from mks_sim.models.refine import verify_hypotheses
 
+    t = time.perf_counter()
     faces = getattr(model, "faces", ())
-    pts = np.asarray(model.surface_points(), dtype=np.float64)
-    surface = ModelSurface.from_arrays(pts, model.surface_normals())
+    surface = model.surface
+    pts = np.asarray(surface.points, dtype=np.float64)
     up = table.normal / np.linalg.norm(table.normal)
     out: list[PoseHypothesis] = []
-    for seg in _object_segments(objects, surface.size):
+    for seg in segments:
+        # off the table's noise band (stereo noise near the table joins the segment)
+        seg_pts = seg.points[table.distance(seg.points) > band]
+        if len(seg_pts) < 30:
+            continue
+        xy = seg_pts[:, :2] - seg_pts[:, :2].mean(axis=0)
+        if 2.0 * float(np.percentile(np.linalg.norm(xy, axis=1), 98)) > 1.3 * surface.size:
+            continue  # larger than the model: not one object of it
         starts: list[PoseHypothesis] = []
-        seg_angle = _principal_angle(seg[:, :2])
+        seg_angle = _principal_angle(seg_pts[:, :2])
         for face in faces:
             n = np.asarray(face.normal, dtype=np.float64)
             if np.max(pts @ n) > face.offset + 0.02 * surface.size:
@@ -580,28 +639,33 @@ def _support_hypotheses(
             yaws = [seg_angle - model_angle + k * np.pi / 2 for k in range(4)]
             yaws += [k * np.pi / 4 for k in range(8)]  # the footprint axis may mislead
             for yaw in yaws:
-                Rz = _rotation_about(up, yaw)
-                R = Rz @ R0
+                R = _rotation_about(up, yaw) @ R0
                 moved = pts @ R.T
-                t = np.zeros(3)
-                t[:2] = seg[:, :2].mean(axis=0) - moved[:, :2].mean(axis=0)
+                tr = np.zeros(3)
+                tr[:2] = seg_pts[:, :2].mean(axis=0) - moved[:, :2].mean(axis=0)
                 # the support face on the table plane
-                t += up * (table.offset - float(np.min(moved @ up)))
-                T = make_transform(R, t)
+                tr += up * (table.offset - float(np.min(moved @ up)))
+                T = make_transform(R, tr)
                 starts.append(PoseHypothesis(T, T[:3, 3].copy(), votes=0))
         if not starts:
             continue
+        t_hyp = time.perf_counter()
+        timing["hypotheses"] = timing.get("hypotheses", 0.0) + (t_hyp - t)
         verified = verify_hypotheses(
             starts,
             surface,
-            seg,
+            seg_pts,
             inlier_distance=d,
             icp_distance=max(4 * d, 0.15 * surface.size),
             symmetries=model.symmetries(),
             max_icp=len(starts),
-            full_refine=6,
+            prescreen=24,
+            full_refine=4,
+            max_scene_points=800,
             rng=rng,
         )
+        t = time.perf_counter()
+        timing["verification"] = timing.get("verification", 0.0) + (t - t_hyp)
         out.extend(v.hypothesis for v in verified)
     out.sort(key=lambda h: -h.score)
     return out
@@ -628,88 +692,18 @@ def _rotation_about(axis: FloatArray, angle: float) -> FloatArray:
     return Rotation.from_rotvec(np.asarray(axis, dtype=float) * angle).as_matrix()
 
 
-def _rank(
-    candidates: list[PoseHypothesis], checks: list[dict[str, Any]]
-) -> tuple[list[int], list[PoseHypothesis]]:
-    """Candidate order (consistent first, then most points explained, then score) and the
-    consistent candidates in that order."""
-    order = sorted(
-        range(len(checks)),
-        key=lambda i: (not checks[i]["ok"], -checks[i]["explained"], -candidates[i].score),
-    )
-    return order, [candidates[i] for i in order if checks[i]["ok"]]
-
-
-def _consistency(
-    T: FloatArray,
-    surface_pts: FloatArray,
-    surface_nrm: FloatArray,
-    cloud: FloatArray,
-    table: Plane | None,
-    d: float,
-) -> dict[str, Any]:
-    """Does the posed model agree with what the sensors saw?
-
-    Counts, over the sensed points near the posed model: ``explained`` (within ``d`` of its
-    surface), ``inside`` (inside the model solid by more than ``d``: the sensor saw through
-    the object) and ``below`` (under the model in their vertical column: the overhead and
-    oblique sensors could not have seen them). ``penetration``: fraction of the model
-    surface below the table plane by more than ``d``.
-    """
-    R, t = T[:3, :3], T[:3, 3]
-    P = surface_pts @ R.T + t
-    N = surface_nrm @ R.T
-    # Only surface the sensors (all above the table) can see explains a point: a downward
-    # face resting on the table would otherwise "explain" the table under a wrong pose.
-    seen = N[:, 2] > -0.3
-    centre = P.mean(axis=0)
-    radius = float(np.max(np.linalg.norm(P - centre, axis=1)))
-    near = cloud[np.linalg.norm(cloud - centre, axis=1) <= radius + 2 * d]
-    out: dict[str, Any] = {"explained": 0, "inside": 0, "below": 0, "penetration": 0.0}
-    if table is not None:
-        out["penetration"] = float(np.mean(table.distance(P) < -d))
-    if len(near):
-        dist, idx = cKDTree(P).query(near)
-        dist_seen = cKDTree(P[seen]).query(near)[0] if seen.any() else np.full(len(near), np.inf)
-        explained = dist_seen <= d
-        sd = np.einsum("ij,ij->i", near - P[idx], N[idx])
-        sd[dist <= d] = 0.0  # on the surface (a visible or a resting face): not inside
-        inside = (~explained) & (sd < -d)
-        # vertical columns: a model surface point within d (xy) above an unexplained point
-        rest = np.flatnonzero(~explained & ~inside)
-        below = np.zeros(len(near), dtype=bool)
-        if len(rest):
-            tree2 = cKDTree(P[:, :2])
-            # radius d/2 and two model points: sensor noise along the silhouette edges
-            # (stereo) does not count, a point well inside the footprint does
-            cols = tree2.query_ball_point(near[rest, :2], r=0.5 * d)
-            zq = near[rest, 2]
-            for j, c in enumerate(cols):
-                if len(c) >= 2 and np.sort(P[c, 2])[-2] > zq[j] + 2 * d:
-                    below[rest[j]] = True
-        out["explained"] = int(explained.sum())
-        out["inside"] = int(inside.sum())
-        out["below"] = int(below.sum())
-    bad = out["inside"] + out["below"]
-    out["ok"] = bool(
-        out["explained"] >= 30
-        and bad <= 0.05 * max(out["explained"], 1)
-        and out["penetration"] <= 0.02
-    )
-    return out
-
-
 def _localize_sphere(
     model: Any,
     snap: Any,
     sensor: str,
-    points: FloatArray,
+    rep: Representation,
     rng: np.random.Generator,
     timing: dict[str, float],
 ) -> tuple[list[PoseHypothesis], dict[str, Any]]:
     """Sphere: Sphere_Detector rows of the model's radius plus a fixed-radius centre Hough
     (votes ``p - r n``), each refined by a fixed-radius robust fit and scored by how much of
     the sphere's upper cap the sensed points cover."""
+    del rng
     extra: dict[str, Any] = {}
     t = time.perf_counter()
     try:
@@ -717,24 +711,19 @@ def _localize_sphere(
     except MksError as exc:
         log.info("logical sensor %s unavailable: %s", sensor, exc)
         rows = np.zeros((0, 4))
-    timing["model_sensor"] = time.perf_counter() - t
     extra["detected_features"] = len(rows)
     radius = float(model.radius_m)
     match = model.match(rows) if hasattr(model, "match") else np.arange(len(rows))
     extra["matched"] = len(match)
-
-    t = time.perf_counter()
-    table, table_thr = find_table(points, rng)
-    objects = points if table is None else points[table.distance(points) > table_thr]
-    d = _noise_scale(points, table, 0.0)
+    objects = rep.objects
+    d = _noise_scale(rep.table, rep.spacing)
     seeds = [rows[i, :3] for i in match]
-    seeds += _sphere_hough(objects, radius)
-    timing["matching"] = time.perf_counter() - t
+    seeds += _sphere_hough(objects, radius, rep.normals.normals)
+    timing["hypotheses"] = time.perf_counter() - t
     extra["candidates"] = len(seeds)
 
     t = time.perf_counter()
     scored = _score_spheres(objects, seeds, radius, d)
-    timing["refinement"] = time.perf_counter() - t
     scored.sort(key=lambda x: (not x[2]["ok"], -x[0], x[1].rmse))
     extra["inlier_distance_m"] = d
     extra["checks"] = [chk for _, _, chk in scored[:5]]
@@ -742,6 +731,7 @@ def _localize_sphere(
     for _, h, chk in scored:
         if chk["ok"] and all(np.linalg.norm(h.matrix[:3, 3] - g.matrix[:3, 3]) > d for g in good):
             good.append(h)
+    timing["verification"] = time.perf_counter() - t
     return good, extra
 
 
@@ -753,7 +743,7 @@ def _score_spheres(
     if len(objects) < 20:
         return out
     tree = cKDTree(objects)
-    cap = _fibonacci(400)
+    cap = fibonacci_sphere(400)
     cap = cap[cap[:, 2] > 0.3]
     for c0 in seeds:
         fit = _fit_fixed_sphere(objects, tree, np.asarray(c0, dtype=float), radius, d)
@@ -784,22 +774,14 @@ def _score_spheres(
     return out
 
 
-def _fibonacci(n: int) -> FloatArray:
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    phi = np.pi * (1.0 + 5**0.5) * i
-    r = np.sqrt(1.0 - z * z)
-    return np.c_[r * np.cos(phi), r * np.sin(phi), z]
-
-
-def _sphere_hough(objects: FloatArray, radius: float, peaks: int = 4) -> list[FloatArray]:
-    """Centres voted by ``p - r n`` (normals towards the sensors above), the fullest cells."""
-    from mks_sim.lowlevel.grouping import estimate_normals
-
+def _sphere_hough(
+    objects: FloatArray, radius: float, normals: FloatArray, peaks: int = 4
+) -> list[FloatArray]:
+    """Centres voted by ``p - r n`` (outward normals of the representation), the fullest
+    cells."""
     if len(objects) < 50:
         return []
-    sn = estimate_normals(objects, m=24, viewpoint=(0.0, 0.0, 2.0), curvature_rings=1)
-    votes = objects - radius * sn.normals
+    votes = objects - radius * normals
     cell = radius / 5.0
     keys = np.floor(votes / cell).astype(np.int64)
     uniq, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)

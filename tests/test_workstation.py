@@ -9,7 +9,8 @@ import pytest
 from mks_sim.errors import NotFound
 from mks_sim.geometry.meshes import box_mesh, sample_surface
 from mks_sim.geometry.transforms import cube_rotations, make_transform, pose_error
-from mks_sim.workstation import _consistency, find_table, localize, localize_object
+from mks_sim.localization.verify import consistency
+from mks_sim.workstation import find_table, localize, localize_object
 
 # Tolerances of the end-to-end tests (the benchmark's success criterion is 5 mm / 5 deg).
 TOL_MM = {"healthy": 2.0, "stereo": 3.5}
@@ -84,13 +85,13 @@ def test_consistency_check_rejects_floating_sunken_and_shifted_poses() -> None:
     table, _ = find_table(cloud, rng)
     assert table is not None and table.offset == pytest.approx(0.75, abs=1e-6)
     pts, nrm = sample_surface(box_mesh(0.05), 2000, rng=rng)
-    good = _consistency(T, pts, nrm, cloud, table, 0.003)
+    good = consistency(T, pts, nrm, cloud, table, 0.003)
     assert good["ok"] and good["inside"] == 0 and good["penetration"] == 0.0
-    sunk = _consistency(
+    sunk = consistency(
         make_transform(np.eye(3), [0.02, -0.01, 0.76]), pts, nrm, cloud, table, 0.003
     )
     assert not sunk["ok"] and sunk["penetration"] > 0.1
-    moved = _consistency(
+    moved = consistency(
         make_transform(np.eye(3), [0.05, -0.01, 0.775]), pts, nrm, cloud, table, 0.003
     )
     assert not moved["ok"] and moved["below"] + moved["inside"] > 0.05 * moved["explained"]

@@ -123,7 +123,7 @@ def run_trial(
 
     Returns:
         ``{"object", "scene", "seed", "found", "matrix", "truth", "error": {"position_mm",
-        "rotation_deg"}, "success", "provenance", "time_s", "failed_devices", "failure"}``
+        "rotation_deg"}, "success", "provenance", "time_s", "timing_s", "failed_devices", "failure"}``
         (matrices 4x4 column convention, world frame, metres; errors None when not found;
         ``failure`` names the fault when a needed logical sensor had no working way).
     """
@@ -190,9 +190,24 @@ def run_trial(
         "success": bool(success),
         "provenance": {} if result is None else dict(result.provenance),
         "time_s": round(float(time.perf_counter() - t0 if result is None else result.time_s), 4),
+        "timing_s": _timing(result),
         "failed_devices": list(fail),
         "failure": failure,
     }
+
+
+#: Stages reported in ``timing_s`` (seconds): reading the devices, the snapshot's low-level
+#: representation, hypothesis generation, verification (ICP, consistency), the whole flow.
+TIMING_STAGES = ("sensing", "representation", "hypotheses", "verification", "total")
+
+
+def _timing(result: Any) -> dict[str, float]:
+    """``timing_s`` of a localization: :data:`TIMING_STAGES` (0 when a stage did not run)."""
+    if result is None:
+        return {}
+    timing = dict(getattr(result, "diagnostics", {}).get("timing", {}))
+    timing.setdefault("total", float(result.time_s))
+    return {k: round(float(timing.get(k, 0.0)), 4) for k in TIMING_STAGES}
 
 
 def _fmt_matrix(M: list[list[float]] | None) -> str:
@@ -224,6 +239,9 @@ def format_text(rec: dict[str, Any]) -> str:
     if rec.get("failure"):
         lines.append(f"failure: {rec['failure']}")
     lines.append(f"time: {rec['time_s']:.2f} s")
+    if rec.get("timing_s"):
+        stages = ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in rec["timing_s"].items())
+        lines.append(f"timing: {stages}")
     return "\n".join(lines)
 
 
@@ -236,6 +254,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         out = {k: rec[k] for k in ("object", "found", "matrix", "truth", "error", "provenance")}
         out["time_s"] = rec["time_s"]
+        out["timing_s"] = rec["timing_s"]
         out.update(scene=rec["scene"], seed=rec["seed"], success=rec["success"])
         out.update(failed_devices=rec["failed_devices"], failure=rec["failure"])
         print(json.dumps(out, allow_nan=False))

@@ -39,3 +39,13 @@ def as_points(
         bad = int(np.count_nonzero(~np.all(np.isfinite(arr), axis=1)))
         raise DataError(f"{where}: {bad} rows contain NaN or inf; drop them first")
     return arr
+
+
+def fibonacci_sphere(n: int) -> FloatArray:
+    """(n, 3) unit vectors spread evenly over the sphere (Fibonacci lattice, ``z`` from
+    ``1 - 1/n`` down to ``-1 + 1/n``): the one direction sampler of the package."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    phi = np.pi * (1.0 + 5**0.5) * i
+    r = np.sqrt(1.0 - z * z)
+    return np.c_[r * np.cos(phi), r * np.sin(phi), z]

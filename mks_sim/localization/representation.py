@@ -68,7 +68,7 @@ class RepresentationConfig:
     m: int = 12
     min_region_points: int = 40
     voxel: float | str | None = "auto"
-    max_points: int = 30000
+    max_points: int = 100000
     viewpoint: tuple[float, float, float] | None = None
 
 
@@ -328,6 +328,14 @@ class Representation:
             sn = SurfaceNormals(nrm, sn.curvature)
         return sn
 
+    @property
+    def seeds(self) -> str:
+        """Region-growing seeds: ``"planar"`` (curved surfaces stay curved regions) unless the
+        noise exceeds 15 % of the spacing: then plane interiors are coded curved as often as
+        a sphere's points (stereo: median surface variation 0.009 on cube faces, 0.011 on the
+        sphere) and every point may seed (``"all"``)."""
+        return "all" if self.noise > 0.15 * self.spacing else "planar"
+
     @cached_property
     def segmentation(self) -> Any:
         """:class:`~mks_sim.lowlevel.regions.Segmentation` of :attr:`objects`: planar
@@ -338,7 +346,7 @@ class Representation:
             self.objects,
             _Fixed(self._adjacency),
             surface_normals=self.normals,
-            seeds="planar",
+            seeds=self.seeds,
             min_points=self.config.min_region_points,
         )
 

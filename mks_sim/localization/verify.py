@@ -190,11 +190,14 @@ def consistency(
             tree2 = cKDTree(P[:, :2])
             # radius d/2 and two model points: sensor noise along the silhouette edges
             # (stereo) does not count, a point well inside the footprint does
-            cols = tree2.query_ball_point(near[rest, :2], r=0.5 * d)
-            zq = near[rest, 2]
-            for j, c in enumerate(cols):
-                if len(c) >= 2 and np.sort(P[c, 2])[-2] > zq[j] + 2 * d:
-                    below[rest[j]] = True
+            counts = tree2.query_ball_point(near[rest, :2], r=0.5 * d, return_length=True)
+            rest = rest[np.asarray(counts) >= 2]  # only points under the model's footprint
+            if len(rest):
+                cols = tree2.query_ball_point(near[rest, :2], r=0.5 * d)
+                zq = near[rest, 2]
+                for j, c in enumerate(cols):
+                    if np.sort(P[c, 2])[-2] > zq[j] + 2 * d:
+                        below[rest[j]] = True
         explained_n, inside_n, below_n = int(explained.sum()), int(inside.sum()), int(below.sum())
     bad = inside_n + below_n
     ok = bool(explained_n >= 30 and bad <= 0.05 * max(explained_n, 1) and penetration <= 0.02)

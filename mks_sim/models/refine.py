@@ -32,6 +32,7 @@ __all__ = [
     "detect_symmetries",
     "group_equivalent",
     "icp_point_to_plane",
+    "batch_inlier_fractions",
     "score_pose",
     "verify_hypotheses",
 ]
@@ -217,6 +218,38 @@ def score_pose(
     return frac * float(np.exp(-0.5 * (rmse / inlier_distance) ** 2)), frac, rmse
 
 
+def batch_inlier_fractions(
+    surface: ModelSurface,
+    scene_points: ArrayLike,
+    matrices: ArrayLike,
+    inlier_distance: float,
+) -> FloatArray:
+    """(K,) inlier fraction of :func:`score_pose` for K poses at once: the scene points are
+    moved into each model frame and all K x N of them go through one k-d tree query.
+
+    Args:
+        surface: the model surface.
+        scene_points: (N, 3) scene points (a few hundred suffice for ranking).
+        matrices: (K, 4, 4) model -> scene poses.
+        inlier_distance: as :func:`score_pose`.
+    """
+    scene = np.asarray(scene_points, dtype=np.float64)
+    T = np.asarray(matrices, dtype=np.float64).reshape(-1, 4, 4)
+    if len(T) == 0 or len(scene) == 0:
+        return np.zeros(len(T))
+    R = T[:, :3, :3]
+    # model frame: R^T (p - t)
+    p = np.einsum("kji,knj->kni", R, scene[None, :, :] - T[:, None, :3, 3])  # (K, N, 3)
+    flat = p.reshape(-1, 3)
+    dist, j = surface.tree.query(flat, distance_upper_bound=inlier_distance + surface.spacing)
+    ok = np.isfinite(dist)
+    r = np.full(len(flat), np.inf)
+    jj = j[ok]
+    r[ok] = np.abs(np.einsum("ij,ij->i", flat[ok] - surface.points[jj], surface.normals[jj]))
+    inl = (r <= inlier_distance).reshape(len(T), -1)
+    return np.asarray(inl.mean(axis=1), dtype=np.float64)
+
+
 def _angles_deg(R: FloatArray, rotations: FloatArray) -> FloatArray:
     """(S,) angles (degrees) between R (3, 3) and each of (S, 3, 3) rotations."""
     cos = (np.einsum("sij,ij->s", rotations, R) - 1.0) / 2.0
@@ -242,12 +275,13 @@ def _matching_symmetry(A: FloatArray, B: FloatArray, syms: FloatArray) -> FloatA
 def _symmetric_images(T: FloatArray, related: list[FloatArray]) -> FloatArray:
     """Distinct poses T @ S for the non-identity S in ``related`` (the equivalents)."""
     out: list[FloatArray] = []
-    for S in related:
-        if rotation_angle_deg(S, np.eye(3)) < 1e-3:
-            continue
-        if any(rotation_angle_deg(S, o) < 1e-3 for o in out):
-            continue
-        out.append(S)
+    if related:
+        R = np.asarray(related, dtype=np.float64).reshape(-1, 3, 3)
+        # the symmetries are exact copies of the model's: rounding identifies equal ones
+        _, first = np.unique(np.round(R.reshape(len(R), 9), 6), axis=0, return_index=True)
+        for k in sorted(first):
+            if np.trace(R[k]) < 3.0 - 1e-9:  # not the identity
+                out.append(R[k])
     images = np.repeat(T[None], len(out), axis=0)
     if out:
         images[:, :3, :3] = T[:3, :3] @ np.array(out)
@@ -333,6 +367,7 @@ def verify_hypotheses(
     icp_iterations: int = 20,
     full_refine: int = 3,
     max_scene_points: int = 1500,
+    prescreen: int | None = None,
     rng: np.random.Generator | None = None,
 ) -> list[VerifiedHypothesis]:
     """Refine (ICP), score and rank hypotheses; report symmetric equivalents once.
@@ -350,6 +385,10 @@ def verify_hypotheses(
         full_refine: fully refine this many starts (best after 6 coarse ICP iterations on
             500 scene points); the others keep their coarse pose and score.
         max_scene_points: ICP and scoring use a random subset of at most this many points.
+        prescreen: when set, all distinct starts are first scored together in one batch
+            (:func:`batch_inlier_fractions` on 300 scene points) and only this many of the
+            best get the coarse ICP; None runs the coarse ICP on every start (up to
+            ``max_icp``).
         rng: generator for that subset (default seeded 0).
 
     Returns:
@@ -372,7 +411,15 @@ def verify_hypotheses(
     init_labels = group_equivalent(
         [h.matrix for h in ordered], symmetries, rotation_tol_deg=8.0, translation_tol=0.05 * size
     )
-    start_ids = [i for i in range(len(ordered)) if init_labels[i] == i][:max_icp]
+    start_ids = [i for i in range(len(ordered)) if init_labels[i] == i]
+    if prescreen is not None and len(start_ids) > prescreen:
+        probe = scene[rng.permutation(len(scene))[:300]]
+        fr = batch_inlier_fractions(
+            surface, probe, np.stack([ordered[i].matrix for i in start_ids]), gate / 2
+        )
+        best = np.argsort(-fr, kind="stable")[:prescreen]
+        start_ids = [start_ids[k] for k in sorted(best)]
+    start_ids = start_ids[:max_icp]
     # Two stages: a few coarse ICP iterations on a subset for every start, then full
     # refinement of the most promising ones only.
     coarse_scene = scene[rng.permutation(len(scene))[:500]]

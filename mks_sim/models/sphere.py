@@ -28,18 +28,11 @@ from typing import Any
 import numpy as np
 
 from mks_sim.errors import DataError, SpecError
+from mks_sim.geometry.points import fibonacci_sphere
 from mks_sim.models.database import register_model_kind
 from mks_sim.models.pose import PoseHypothesis
 
 __all__ = ["SphereModel", "load_sphere_model"]
-
-
-def _fibonacci_sphere(n: int) -> np.ndarray:
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    phi = np.pi * (1.0 + 5**0.5) * i
-    r = np.sqrt(1.0 - z * z)
-    return np.c_[r * np.cos(phi), r * np.sin(phi), z]
 
 
 @dataclass(frozen=True)
@@ -80,11 +73,11 @@ class SphereModel:
 
     def surface_points(self) -> np.ndarray:
         """(M, 3) points on the sphere, model frame."""
-        return self.radius_m * _fibonacci_sphere(self.n_surface)
+        return self.radius_m * fibonacci_sphere(self.n_surface)
 
     def surface_normals(self) -> np.ndarray:
         """(M, 3) outward normals."""
-        return _fibonacci_sphere(self.n_surface)
+        return fibonacci_sphere(self.n_surface)
 
     def symmetries(self) -> np.ndarray | None:
         """None: every rotation is a symmetry; compare positions only."""

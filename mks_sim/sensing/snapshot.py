@@ -71,6 +71,7 @@ class Snapshot:
         self._failures: dict[str, SensorFailure] = {}
         self._attempts: dict[str, list[Attempt]] = {}
         self._provenance: dict[str, str] = {}
+        self._representations: dict[tuple[str, Any], Any] = {}
 
     # ------------------------------------------------------------------ public
 
@@ -143,6 +144,30 @@ class Snapshot:
             raise
         self._streams[sensor] = stream
         return stream
+
+    def representation(self, sensor: str, config: Any = None) -> Any:
+        """The low-level representation of a point sensor's output (k-d tree, table, SPG,
+        normals, segmentation; :class:`mks_sim.localization.representation.Representation`),
+        built at most once per snapshot and shared with the description programs that read
+        the same stream.
+
+        Args:
+            sensor: a logical sensor whose first three fields are x, y, z.
+            config: a ``RepresentationConfig`` (default ``RepresentationConfig()``).
+
+        Raises:
+            SensorFailure: the sensor failed, or its points cannot be represented.
+        """
+        key = (sensor, config)
+        if key not in self._representations:
+            from mks_sim.localization.representation import representation_of
+
+            stream = self.get(sensor)
+            try:
+                self._representations[key] = representation_of(stream.data, config)
+            except DataError as exc:
+                raise SensorFailure(sensor, str(exc)) from exc
+        return self._representations[key]
 
     def evaluate(self, names: Iterable[str]) -> dict[str, Stream]:
         """``get`` each sensor of ``names`` (inputs are evaluated on demand, so a failed input

@@ -1,0 +1,125 @@
+"""The localization engine's shared representation and batch scoring (issue 9, section 1)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mks_sim.geometry.meshes import box_mesh, sample_surface, uv_sphere
+from mks_sim.geometry.transforms import make_transform, random_rotation
+from mks_sim.localization import (
+    Representation,
+    RepresentationConfig,
+    batch_explained,
+    representation_of,
+)
+from mks_sim.lowlevel.normals import _smallest_eigen
+from mks_sim.models.refine import ModelSurface, batch_inlier_fractions, score_pose
+
+TABLE_Z = 0.75
+
+
+def _scene(seed: int = 0) -> np.ndarray:
+    """A 5 cm cube and a 3 cm sphere on a table plane (top halves seen)."""
+    rng = np.random.default_rng(seed)
+    cube, _ = sample_surface(box_mesh(0.05), 3000, rng=rng)
+    cube = cube[cube[:, 2] > -0.0249] + [0.05, -0.03, TABLE_Z + 0.025]
+    sphere, _ = sample_surface(uv_sphere(0.03, 32, 64), 3000, rng=rng)
+    sphere = sphere[sphere[:, 2] > -0.02] + [-0.08, 0.06, TABLE_Z + 0.03]
+    table = np.c_[rng.uniform(-0.2, 0.2, (15000, 2)), np.full(15000, TABLE_Z)]
+    table[:, 2] += rng.normal(0.0, 2e-4, len(table))
+    pts = np.vstack([table, cube, sphere])
+    pts.setflags(write=False)
+    return pts
+
+
+def test_closed_form_eigen_matches_numpy() -> None:
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(2000, 3, 3))
+    C = A @ A.transpose(0, 2, 1)
+    C[:50] = np.diag([1.0, 1.0, 1e-9])  # a plane
+    C[50:60] = np.eye(3)  # isotropic: any direction, curvature 1/3
+    iu = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+    normals, curvature = _smallest_eigen(np.stack([C[:, i, j] for i, j in iu], axis=1))
+    w, v = np.linalg.eigh(C)
+    np.testing.assert_allclose(curvature, w[:, 0] / w.sum(axis=1), atol=1e-12)
+    distinct = np.arange(len(C)) >= 60
+    cos = np.abs(np.einsum("ni,ni->n", normals, v[:, :, 0]))
+    np.testing.assert_allclose(cos[distinct], 1.0, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-12)
+
+
+def test_batch_inlier_fractions_equal_score_pose() -> None:
+    rng = np.random.default_rng(2)
+    pts, nrm = sample_surface(box_mesh(0.05), 3000, rng=rng)
+    surface = ModelSurface.from_arrays(pts, nrm)
+    scene, _ = sample_surface(box_mesh(0.05), 400, rng=rng)
+    mats = [np.eye(4)] + [
+        make_transform(random_rotation(rng), rng.normal(0.0, 0.003, 3)) for _ in range(15)
+    ]
+    batch = batch_inlier_fractions(surface, scene, np.stack(mats), 0.002)
+    brute = [score_pose(surface, scene, T, 0.002)[1] for T in mats]
+    np.testing.assert_allclose(batch, brute, atol=1e-12)
+    assert batch[0] > 0.99 and batch[1:].max() < batch[0]
+
+
+def test_batch_explained_counts_model_samples_near_the_scene() -> None:
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(3)
+    model = rng.uniform(-0.02, 0.02, (200, 3))
+    shift = make_transform(np.eye(3), [0.1, 0.0, 0.0])
+    scene_tree = cKDTree(model)
+    counts = batch_explained(model, np.stack([np.eye(4), shift]), scene_tree, 1e-6)
+    assert counts.tolist() == [200, 0]
+
+
+def test_representation_finds_table_objects_and_cube_vertexes() -> None:
+    rep = Representation(_scene(), RepresentationConfig(table_z_m=TABLE_Z, gap_m=0.012))
+    assert rep.table is not None and abs(rep.table.normal[2]) > 0.999
+    assert np.all(rep.objects[:, 2] > TABLE_Z + rep.table_threshold - 1e-9)
+    comps = rep.components(30)
+    assert len(comps) == 2  # the cube and the sphere
+    cube = max(comps, key=lambda c: -abs(rep.objects[c, 0].mean() - 0.05))
+    verts, planes = rep.vertexes_of(cube)
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * 0.025
+    corners += [0.05, -0.03, TABLE_Z + 0.025]
+    d = np.linalg.norm(verts.points[:, None] - corners[None], axis=2).min(axis=0)
+    assert np.all(d < 0.003), d  # every corner: top ones from three faces, bottom with the table
+    assert len(planes) == 5
+    sphere_regions = [r for r in rep.segmentation.curved if r.sphere is not None]
+    assert any(abs(r.sphere.radius - 0.03) < 0.002 for r in sphere_regions)
+
+
+def test_representation_of_is_shared_per_array_and_config() -> None:
+    pts = _scene()
+    cfg = RepresentationConfig(table_z_m=TABLE_Z)
+    a = representation_of(pts, cfg)
+    assert representation_of(pts, cfg) is a
+    assert representation_of(pts, RepresentationConfig()) is not a
+    assert representation_of(pts.copy(), cfg) is not a
+
+
+def test_each_piece_is_computed_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    import mks_sim.lowlevel.normals as normals_mod
+    import mks_sim.lowlevel.regions as regions_mod
+
+    calls = {"normals": 0, "segment": 0}
+    real_normals, real_segment = normals_mod.estimate_normals, regions_mod.segment_surfaces
+
+    def count_normals(*a, **k):  # type: ignore[no-untyped-def]
+        calls["normals"] += 1
+        return real_normals(*a, **k)
+
+    def count_segment(*a, **k):  # type: ignore[no-untyped-def]
+        calls["segment"] += 1
+        return real_segment(*a, **k)
+
+    monkeypatch.setattr(normals_mod, "estimate_normals", count_normals)
+    monkeypatch.setattr(regions_mod, "segment_surfaces", count_segment)
+    rep = Representation(_scene(), RepresentationConfig(table_z_m=TABLE_Z, gap_m=0.012))
+    for comp in rep.components():
+        rep.vertexes_of(comp)
+        rep.vertexes_of(comp)
+    _ = rep.segmentation.curved, rep.normals.curvature
+    assert calls == {"normals": 1, "segment": 1}
