@@ -91,6 +91,37 @@ def test_replaying_actions_from_the_seed_reproduces_observations(recorded: Path)
                                       err_msg=key)  # fmt: skip
 
 
+class _FakeStorage:
+    def __init__(self) -> None:
+        self.writes: list[list[int]] = []
+        self.metadata: dict[int, dict] = {}
+
+    def update_episodes(self, buffers) -> None:
+        self.writes.append([b.id for b in buffers])
+
+    def update_episode_metadata(self, metadatas, ids) -> None:
+        self.metadata.update(zip(ids, metadatas, strict=True))
+
+
+def test_episodes_are_written_in_seed_order_as_they_arrive() -> None:
+    from minari.data_collector import EpisodeBuffer
+
+    from mks_sim.record.dataset import _InOrderWriter
+
+    storage = _FakeStorage()
+    writer = _InOrderWriter(storage, {"object": "cube"})
+    writer.BATCH = 2
+    arrival = [2, 0, 3, 1, 5, 4]  # completion order of six jobs
+    kept = [writer(i, {"buffer": EpisodeBuffer(seed=100 + i),
+                       "episode": {"seed": 100 + i, "success": i % 2 == 0}})
+            for i in arrival]  # fmt: skip
+    writer.flush()
+    assert [k["seed"] for k in kept] == [100 + i for i in arrival]  # summaries handed back
+    # 0 alone is below the batch; 1 releases 1, 2, 3 behind it; 4 releases 5.
+    assert storage.writes == [[0, 1, 2, 3], [4, 5]]  # job order, no gaps, batched
+    assert storage.metadata == {i: {"object": "cube", "success": i % 2 == 0} for i in range(6)}
+
+
 def test_record_dir_is_checked_before_any_episode(tmp_path: Path, capsys) -> None:
     (tmp_path / "grasp-v0").write_text("not a folder")
     assert main(["grasp", "--object", "cube", "--record", str(tmp_path / "grasp-v0")]) == 2

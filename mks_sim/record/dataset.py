@@ -4,10 +4,11 @@ Each episode runs where the others run (:mod:`mks_sim.tasks.backends`: this proc
 process pool or Ray tasks): :func:`record_episode` steps ``mks_sim/Grasp-v*`` with the
 scripted policy and returns the episode as a :class:`minari.data_collector.EpisodeBuffer`
 (observations, actions, rewards, terminations, truncations, infos of
-:class:`~mks_sim.record.infos.StepInfo`); the driver writes the buffers, in seed order, with
-:func:`minari.create_dataset_from_buffers`. (``minari.DataCollector`` builds the same buffers
-in one process, but through ``jax.tree_util`` -- the ``minari[create]`` extra, jax and jaxlib
--- and cannot gather episodes from other processes.)
+:class:`~mks_sim.record.infos.StepInfo`); the driver creates the dataset with
+:func:`minari.create_dataset_from_buffers` and appends the buffers in seed order as they come
+in. (``minari.DataCollector`` builds the same buffers in one process, but through
+``jax.tree_util`` -- the ``minari[create]`` extra, jax and jaxlib -- and cannot gather
+episodes from other processes.)
 
 The dataset lives in the folder ``DIR`` given to ``--record``; its Minari id is the folder's
 name (``NAME-vN``), so ``MINARI_DATASETS_PATH=<DIR's parent>`` lets
@@ -243,9 +244,6 @@ def record_episodes(
     minari = _import_minari()
     env_id = env_id or default_env_id()
     jobs = [RecordJob(env_id, object, int(s), tuple(faults), max_episode_steps) for s in seeds]
-    results = run_episodes(jobs, fn=record_episode, backend=backend, address=address,
-                           workers=workers, progress=progress, desc=f"record {object}")  # fmt: skip
-    buffers = [dataclasses.replace(r["buffer"], id=i) for i, r in enumerate(results)]
     sensors, devices = default_names()
     env = make_env(jobs[0])  # spaces and the env spec (as gym.make made it for the episodes)
     try:
@@ -256,7 +254,7 @@ def record_episodes(
             warnings.filterwarnings("ignore", message=".*author_email.*")
             dataset = minari.create_dataset_from_buffers(
                 dataset_id=path.name,
-                buffer=buffers,
+                buffer=[],  # episodes are written as they come in (_InOrderWriter)
                 env=spec,
                 eval_env=spec,
                 algorithm_name=POLICY,
@@ -285,15 +283,52 @@ def record_episodes(
             "mks_sim_policy": POLICY,
         }
     )
-    summaries = [r["episode"] for r in results]
-    dataset.storage.update_episode_metadata(
-        [
-            {"object": object, "success": s["success"], "faults": list(faults)}
-            for s in summaries
-        ],
-        range(len(summaries)),
-    )
+    writer = _InOrderWriter(dataset.storage, {"object": object, "faults": list(faults)})
+    summaries = run_episodes(jobs, fn=record_episode, backend=backend, address=address,
+                             workers=workers, progress=progress, desc=f"record {object}",
+                             on_result=writer)  # fmt: skip
+    writer.flush()
     return summaries
+
+
+class _InOrderWriter:
+    """Write episode buffers to the dataset in job order as they arrive (out of order).
+
+    An episode waits in memory only until those before it are written; writes go in batches
+    (each write re-sizes the dataset folder). A run that stops half-way leaves a valid
+    dataset of its first finished episodes, with no gaps.
+    """
+
+    BATCH = 16
+
+    def __init__(self, storage: Any, episode_metadata: dict[str, Any]) -> None:
+        self.storage = storage
+        self.episode_metadata = episode_metadata
+        self.next = 0  # the next episode id to write
+        self.waiting: dict[int, dict[str, Any]] = {}
+        self.ready: list[tuple[int, dict[str, Any]]] = []
+
+    def __call__(self, index: int, result: dict[str, Any]) -> dict[str, Any]:
+        self.waiting[index] = result
+        while self.next in self.waiting:
+            self.ready.append((self.next, self.waiting.pop(self.next)))
+            self.next += 1
+        if len(self.ready) >= self.BATCH:
+            self.flush()
+        return result["episode"]
+
+    def flush(self) -> None:
+        if not self.ready:
+            return
+        ids = [i for i, _ in self.ready]
+        self.storage.update_episodes(
+            [dataclasses.replace(r["buffer"], id=i) for i, r in self.ready]
+        )
+        self.storage.update_episode_metadata(
+            [{**self.episode_metadata, "success": r["episode"]["success"]} for _, r in self.ready],
+            ids,
+        )
+        self.ready = []
 
 
 def load_recorded(directory: str | os.PathLike[str]) -> Any:

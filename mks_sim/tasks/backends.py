@@ -114,7 +114,8 @@ def run_episodes(
     max_retries: int = MAX_RETRIES,
     progress: bool = True,
     desc: str = "episodes",
-) -> list[dict]:
+    on_result: Callable[[int, dict], Any] | None = None,
+) -> list[Any]:
     """Run ``fn(job)`` for every job on ``backend``; results in job order.
 
     Args:
@@ -127,9 +128,13 @@ def run_episodes(
         max_retries: re-runs of a job whose worker process died.
         progress: show a tqdm bar on stderr.
         desc: the bar's label.
+        on_result: called in this process as each job finishes, with the job's index and
+            result, in completion order; its return value is kept instead of the result
+            (e.g. a summary once the bulky part is written out).
 
     Returns:
-        ``[fn(job) for job in jobs]``, each job counted exactly once.
+        ``[fn(job) for job in jobs]`` (or what ``on_result`` kept), each job counted
+        exactly once.
 
     Raises:
         MksError: bad arguments, Ray missing, or a job whose worker died more than
@@ -144,16 +149,18 @@ def run_episodes(
 
     started = _ray_connect(address, workers) if backend == "ray" else False
     bar = tqdm(total=len(jobs), desc=desc, unit="ep", file=sys.stderr, disable=not progress)
+
+    def finish(i: int, result: dict) -> Any:
+        kept = on_result(i, result) if on_result is not None else result
+        bar.update()
+        return kept
+
     try:
         if backend == "ray":
-            return _run_ray(jobs, fn, max_retries, bar.update)
+            return _run_ray(jobs, fn, max_retries, finish)
         if workers == 1:
-            out = []
-            for job in jobs:
-                out.append(fn(job))
-                bar.update()
-            return out
-        return _run_pool(jobs, fn, workers, max_retries, bar.update)
+            return [finish(i, fn(job)) for i, job in enumerate(jobs)]
+        return _run_pool(jobs, fn, workers, max_retries, finish)
     finally:
         bar.close()
         if started:
@@ -167,11 +174,11 @@ def _run_pool(
     fn: EpisodeFn,
     workers: int,
     max_retries: int,
-    tick: Callable[[], Any],
-) -> list[dict]:
+    finish: Callable[[int, dict], Any],
+) -> list[Any]:
     """Spawn-started process pool; a broken pool is replaced and its unfinished jobs rerun."""
     ctx = multiprocessing.get_context("spawn")
-    results: dict[int, dict] = {}
+    results: dict[int, Any] = {}
     breaks = 0
     while len(results) < len(jobs):
         todo = [i for i in range(len(jobs)) if i not in results]
@@ -187,8 +194,8 @@ def _run_pool(
                         if isinstance(exc, BrokenProcessPool):  # its worker (or another) died
                             broken = exc
                             continue
-                        results[futures[fut]] = fut.result()  # fn's own errors propagate
-                        tick()
+                        i = futures[fut]
+                        results[i] = finish(i, fut.result())  # fn's own errors propagate
                     if broken is not None:
                         raise broken
         except BrokenProcessPool as exc:
@@ -258,20 +265,20 @@ def _run_ray(
     jobs: Sequence[Any],
     fn: EpisodeFn,
     max_retries: int,
-    tick: Callable[[], Any],
-) -> list[dict]:
+    finish: Callable[[int, dict], Any],
+) -> list[Any]:
     import ray
     from ray.exceptions import RayTaskError, WorkerCrashedError
 
     task = ray.remote(num_cpus=1, max_retries=max_retries)(fn)
     refs = {task.remote(job): i for i, job in enumerate(jobs)}
-    results: dict[int, dict] = {}
+    results: dict[int, Any] = {}
     pending = list(refs)
     while pending:
         done, pending = ray.wait(pending, num_returns=1)
         for ref in done:
             try:
-                results[refs[ref]] = ray.get(ref)
+                result = ray.get(ref)
             except WorkerCrashedError as exc:
                 raise MksError(
                     f"ray: job {refs[ref]} ({jobs[refs[ref]]!r}): its worker died "
@@ -282,5 +289,5 @@ def _run_ray(
                 # keeps its exit code).
                 cause = exc.cause
                 raise (cause if isinstance(cause, BaseException) else exc) from None
-            tick()
+            results[refs[ref]] = finish(refs[ref], result)
     return [results[i] for i in range(len(jobs))]
