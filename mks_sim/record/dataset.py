@@ -284,11 +284,12 @@ def record_episodes(
         }
     )
     writer = _InOrderWriter(dataset.storage, {"object": object, "faults": list(faults)})
-    summaries = run_episodes(jobs, fn=record_episode, backend=backend, address=address,
-                             workers=workers, progress=progress, desc=f"record {object}",
-                             on_result=writer)  # fmt: skip
-    writer.flush()
-    return summaries
+    try:
+        return run_episodes(jobs, fn=record_episode, backend=backend, address=address,
+                            workers=workers, progress=progress, desc=f"record {object}",
+                            on_result=writer)  # fmt: skip
+    finally:
+        writer.flush()  # also when an episode failed or the run was interrupted
 
 
 class _InOrderWriter:
