@@ -70,7 +70,10 @@ def test_table_is_well_formed() -> None:
 def test_known_pose_localized_and_grasped(entry: dict) -> None:
     from mks_sim.tasks.episode import run_episode
 
-    r = run_episode(entry["object"], entry["seed"],
+    # Re-sensing during the approach (15-25 localizations an episode) is tested in
+    # test_relocalize.py; here the known poses are localized and grasped without it, which
+    # keeps these six episodes within the suite's time budget.
+    r = run_episode(entry["object"], entry["seed"], resense_period_s=None,
                     setup=_place(entry["object"], entry["x"], entry["y"], entry["yaw_deg"]))  # fmt: skip
     assert r.position_error_mm <= TOL["position_mm"], r
     if entry["object"] != "sphere":
