@@ -143,15 +143,13 @@ def run(args: argparse.Namespace) -> int:
             (e["seed"], "yes" if e["success"] else "no", e["retries"],
              e["error"]["position_mm"] if e["error"]["position_mm"] is not None else float("nan"),
              e["error"]["rotation_deg"] if e["error"]["rotation_deg"] is not None else float("nan"),
-             e["time_s"], e["failure"])
+             e["time_s"], e.get("relocalizations", "-"), e.get("corrections", "-"),
+             e["failure"])
             for e in episodes
         ]  # fmt: skip
-        print(
-            format_table(
-                ("seed", "success", "retries", "pos err mm", "rot err deg", "time s", "failure"),
-                rows,
-            )
-        )
+        headers = ("seed", "success", "retries", "pos err mm", "rot err deg", "time s",
+                   "re-sensed", "corrections", "failure")  # fmt: skip
+        print(format_table(headers, rows))
         print(
             f"success rate: {doc['success_rate']:.2f} ({len(episodes)} episodes, object {args.object})"
         )
