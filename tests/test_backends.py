@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -33,6 +34,15 @@ def _always_crash(job: tuple[str, int]) -> dict:
 
 def _fails(job: int) -> dict:
     raise MksError(f"episode {job} failed on purpose")
+
+
+def _fail_first_or_sleep(job: tuple[str, int]) -> dict:
+    folder, n = job
+    if n == 0:
+        raise MksError("episode 0 failed on purpose")
+    time.sleep(1.0)
+    (Path(folder) / f"ran-{n}").write_text("")
+    return {"n": n}
 
 
 @pytest.fixture(scope="module")
@@ -78,6 +88,14 @@ def test_local_pool_gives_up_after_max_retries(tmp_path: Path) -> None:
 def test_local_pool_propagates_episode_errors() -> None:
     with pytest.raises(MksError, match="episode [12] failed on purpose"):  # whichever ends first
         run_episodes([1, 2], fn=_fails, workers=2, progress=False)
+
+
+def test_local_pool_stops_on_an_episode_error(tmp_path: Path) -> None:
+    jobs = [(str(tmp_path), n) for n in range(12)]
+    with pytest.raises(MksError, match="episode 0 failed on purpose"):
+        run_episodes(jobs, fn=_fail_first_or_sleep, workers=2, progress=False)
+    # The jobs not yet handed to a worker were cancelled, not run to the end.
+    assert len(list(tmp_path.glob("ran-*"))) < 11
 
 
 def test_bad_backend_arguments() -> None:

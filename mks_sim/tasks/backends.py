@@ -186,18 +186,23 @@ def _run_pool(
             with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
                 futures: dict[Future, int] = {pool.submit(fn, jobs[i]): i for i in todo}
                 pending = set(futures)
-                while pending:
-                    done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                    broken: BrokenProcessPool | None = None
-                    for fut in done:
-                        exc = fut.exception()
-                        if isinstance(exc, BrokenProcessPool):  # its worker (or another) died
-                            broken = exc
-                            continue
-                        i = futures[fut]
-                        results[i] = finish(i, fut.result())  # fn's own errors propagate
-                    if broken is not None:
-                        raise broken
+                try:
+                    while pending:
+                        done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                        broken: BrokenProcessPool | None = None
+                        for fut in done:
+                            exc = fut.exception()
+                            if isinstance(exc, BrokenProcessPool):  # a worker died
+                                broken = exc
+                                continue
+                            i = futures[fut]
+                            results[i] = finish(i, fut.result())  # fn's errors propagate
+                        if broken is not None:
+                            raise broken
+                except BaseException as exc:
+                    if not isinstance(exc, BrokenProcessPool):  # an error: stop, run no more
+                        pool.shutdown(wait=True, cancel_futures=True)
+                    raise
         except BrokenProcessPool as exc:
             breaks += 1
             left = len(jobs) - len(results)
@@ -274,20 +279,25 @@ def _run_ray(
     refs = {task.remote(job): i for i, job in enumerate(jobs)}
     results: dict[int, Any] = {}
     pending = list(refs)
-    while pending:
-        done, pending = ray.wait(pending, num_returns=1)
-        for ref in done:
-            try:
-                result = ray.get(ref)
-            except WorkerCrashedError as exc:
-                raise MksError(
-                    f"ray: job {refs[ref]} ({jobs[refs[ref]]!r}): its worker died "
-                    f"{max_retries + 1} times (expected <= max_retries={max_retries})"
-                ) from exc
-            except RayTaskError as exc:
-                # The episode's own error, as the local backend raises it (an MksError
-                # keeps its exit code).
-                cause = exc.cause
-                raise (cause if isinstance(cause, BaseException) else exc) from None
-            results[refs[ref]] = finish(refs[ref], result)
+    try:
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            for ref in done:
+                try:
+                    result = ray.get(ref)
+                except WorkerCrashedError as exc:
+                    raise MksError(
+                        f"ray: job {refs[ref]} ({jobs[refs[ref]]!r}): its worker died "
+                        f"{max_retries + 1} times (expected <= max_retries={max_retries})"
+                    ) from exc
+                except RayTaskError as exc:
+                    # The episode's own error, as the local backend raises it (an MksError
+                    # keeps its exit code).
+                    cause = exc.cause
+                    raise (cause if isinstance(cause, BaseException) else exc) from None
+                results[refs[ref]] = finish(refs[ref], result)
+    except BaseException:
+        for ref in pending:  # a joined cluster would go on running them for nobody
+            ray.cancel(ref)
+        raise
     return [results[i] for i in range(len(jobs))]
