@@ -70,8 +70,8 @@ log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 #: Part of a model's surface one view is assumed to show at least (a cube seen obliquely
-#: shows ~1/2, the industrial part from above ~1/3); a hypothesis explaining fewer scene
-#: points than this share of the model's area at the scene's spacing has its score scaled down.
+#: shows ~1/2, the industrial part from above ~1/3); a hypothesis under which fewer of the
+#: model's surface samples than this share have a scene point nearby has its score scaled down.
 VISIBLE_FRACTION = 0.2
 
 
@@ -603,8 +603,9 @@ class Localization:
         found: the best hypothesis passed ``min_score``.
         hypotheses: verified hypotheses, best first (``matrix`` model -> scene, ``votes``,
             ``score`` in [0, 1] = inlier fraction x residual factor (see
-            :func:`~mks_sim.models.refine.score_pose`) x coverage (explained points over
-            :data:`VISIBLE_FRACTION` of the model's area at the scene spacing, capped at 1),
+            :func:`~mks_sim.models.refine.score_pose`) x coverage (the fraction of the
+            model's surface samples with a scene point nearby over :data:`VISIBLE_FRACTION`,
+            capped at 1: independent of the scan density),
             ``rmse`` in scene units).
         equivalents: per hypothesis, (E, 4, 4) poses equivalent to it under the model's
             symmetries that the matcher also proposed.
@@ -878,12 +879,12 @@ def localize_cloud(
     results: list[tuple[PoseHypothesis, FloatArray, float, int]] = []
     syms = loc_model.symmetries()
     # Uniform random samples: median nearest-neighbour distance = 0.47 / sqrt(density).
-    model_area = len(surface.points) * (surface.spacing / 0.47) ** 2
-    expected_points = VISIBLE_FRACTION * model_area / max(spacing, 1e-12) ** 2
+    from mks_sim.localization.verify import surface_coverage
+
     for si, (seg_pts, seg) in enumerate(seg_data):
         rep = segments[si]
         noise = float(np.median([p.plane.rmse for p in rep.planes])) if rep.planes else 0.0
-        inlier = max(1.0 * spacing, 3.0 * noise)
+        inlier = max(1.0 * spacing, voxel_size, 3.0 * noise)
         t = time.perf_counter()
         if isinstance(loc_model, PolyhedralModel):
             hyps = vertex_hypotheses(loc_model, rep.vertexes, seg_pts, vote_distance=4 * spacing)
@@ -924,11 +925,18 @@ def localize_cloud(
                 rng=rng,
             )
             t_refine += time.perf_counter() - t
-        # Coverage: a pose must explain about as many points as one view of the model shows,
+        # Coverage: a pose must show about as much of the model's surface as one view does,
         # or a small segment (clutter, a fragment) that a piece of the model fits would win.
-        for v in verified:
-            explained = v.inlier_fraction * len(seg_pts)
-            coverage = min(1.0, explained / expected_points)
+        # Counted on the model's fixed sampling (not in scene points): density independent.
+        if verified:
+            cover = surface_coverage(
+                surface.points,
+                np.stack([v.hypothesis.matrix for v in verified]),
+                cKDTree(seg_pts),
+                max(inlier, 1.5 * spacing, voxel_size),
+            )
+        for k, v in enumerate(verified):
+            coverage = min(1.0, float(cover[k]) / VISIBLE_FRACTION)
             h = replace(v.hypothesis, score=v.hypothesis.score * coverage)
             results.append((h, v.equivalents, v.inlier_fraction, si))
     results.sort(key=lambda r: (-r[0].score, r[0].rmse))

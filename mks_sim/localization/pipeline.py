@@ -160,14 +160,14 @@ def polyhedral_candidates(
     surface = model.surface
     syms = model.symmetries()
     spacing = rep.spacing
-    model_area = len(surface.points) * (surface.spacing / 0.47) ** 2
-    expected_points = VISIBLE_FRACTION * model_area / max(spacing, 1e-12) ** 2
+    from mks_sim.localization.verify import surface_coverage
+
     results: list[tuple[PoseHypothesis, int]] = []
     t_hyp = t_ver = 0.0
     for si, seg in enumerate(segments):
         seg_pts = seg.points
         noise = float(np.median([p.plane.rmse for p in seg.planes])) if seg.planes else 0.0
-        inlier = max(1.0 * spacing, 3.0 * noise)
+        inlier = max(1.0 * spacing, rep.voxel, 3.0 * noise)
         t = time.perf_counter()
         hyps = vertex_hypotheses(model, seg.vertexes, seg_pts, vote_distance=4 * spacing)
         t_hyp += time.perf_counter() - t
@@ -213,9 +213,18 @@ def polyhedral_candidates(
                 rng=rng,
             )
             t_ver += time.perf_counter() - t
-        for v in verified:
-            explained = v.inlier_fraction * len(seg_pts)
-            coverage = min(1.0, explained / expected_points)
+        # coverage of the model's surface at its own sampling: density independent
+        if verified:
+            from scipy.spatial import cKDTree
+
+            cover = surface_coverage(
+                surface.points,
+                np.stack([v.hypothesis.matrix for v in verified]),
+                cKDTree(seg_pts),
+                max(inlier, 1.5 * spacing, rep.voxel),
+            )
+        for k, v in enumerate(verified):
+            coverage = min(1.0, float(cover[k]) / VISIBLE_FRACTION)
             results.append((replace(v.hypothesis, score=v.hypothesis.score * coverage), si))
     results.sort(key=lambda r: (-r[0].score, r[0].rmse))
     results = results[:max_hypotheses]
