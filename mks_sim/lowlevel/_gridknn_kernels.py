@@ -204,35 +204,57 @@ def cell_rows(
                 inside += d2[t] <= guess
             if inside > m:
                 lim2 = guess
+        # Rank by (squared distance, index); distances (sqrt) only for the kept ones.
         for t in range(total):
-            if d2[t] > lim2:
+            e2 = d2[t]
+            if e2 > lim2:
                 continue
             j = bt[t]
             if j == me:
                 continue
-            d = math.sqrt(d2[t])
-            if d > thr:
-                continue
             if cnt == m:
-                dl = best_d[m - 1]
-                if d > dl or (d == dl and j > best_i[m - 1]):
+                dl = best_d2[m - 1]
+                if e2 > dl or (e2 == dl and j > best_i[m - 1]):
                     continue
                 k = m - 1
             else:
                 k = cnt
                 cnt += 1
-            while k > 0 and (best_d[k - 1] > d or (best_d[k - 1] == d and best_i[k - 1] > j)):
-                best_d[k] = best_d[k - 1]
+            while k > 0 and (best_d2[k - 1] > e2 or (best_d2[k - 1] == e2 and best_i[k - 1] > j)):
                 best_d2[k] = best_d2[k - 1]
                 best_i[k] = best_i[k - 1]
                 k -= 1
-            best_d[k] = d
-            best_d2[k] = d2[t]
+            best_d2[k] = e2
             best_i[k] = j
             if cnt == m:
-                lim2 = min(lim2, best_d2[m - 1] * (1.0 + 1e-14) + 1e-300)
+                lim2 = min(lim2, best_d2[m - 1])
+        # The SPG ranks by (distance, index): distinct squares may share a sqrt. Reorder such
+        # runs by index, and give up the row (the tree answers it) when a left-out candidate
+        # ties the m-th distance, or when the threshold cut falls inside a tie.
+        for k in range(cnt):
+            best_d[k] = math.sqrt(best_d2[k])
+        for k in range(1, cnt):
+            u = k
+            while u > 0 and best_d[u - 1] == best_d[u] and best_i[u - 1] > best_i[u]:
+                best_i[u - 1], best_i[u] = best_i[u], best_i[u - 1]
+                best_d2[u - 1], best_d2[u] = best_d2[u], best_d2[u - 1]
+                u -= 1
+        while cnt > 0 and best_d[cnt - 1] > thr:
+            cnt -= 1
         if cnt == m:
-            guess = best_d2[m - 1] * (1.0 + 1e-14) + 1e-300
+            dl = best_d2[m - 1]
+            hi = dl * (1.0 + 1e-15) + 1e-300  # squares whose sqrt can equal the m-th distance
+            near = 0
+            for t in range(total):  # vectorised
+                near += (d2[t] > dl) & (d2[t] <= hi)
+            if near:
+                ambiguous = False
+                for t in range(total):
+                    if d2[t] > dl and d2[t] <= hi and math.sqrt(d2[t]) == best_d[m - 1]:
+                        ambiguous = True
+                if ambiguous:
+                    continue
+            guess = dl * (1.0 + 1e-14) + 1e-300
         cov = min(qx - bd[0], bd[1] - qx, qy - bd[2], bd[3] - qy, qz - bd[4], bd[5] - qz)
         reach = thr
         if cnt == m and best_d[m - 1] < reach:

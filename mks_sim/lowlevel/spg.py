@@ -113,12 +113,12 @@ class SpatialProximityGraph:
                 f"SpatialProximityGraph: expected method 'auto', 'tree' or 'grid', got {method!r}"
             )
         metric = metric if metric is not None else Metric.euclidean()
-        if method != "tree":
+        if method == "grid" or (method == "auto" and len(pts) >= _GRID_MIN_POINTS):
             m_checked, _ = _check_params(m, threshold)
-            why = _grid_unfit(pts, metric, m_checked)
+            why = _grid_unfit(pts, metric, m_checked)  # imports numba: only when worth it
             if method == "grid" and why:
                 raise SpecError(f"SpatialProximityGraph: method='grid' needs {why}")
-            if not why and (method == "grid" or len(pts) >= _GRID_MIN_POINTS):
+            if not why:
                 self._init_grid(pts, m, threshold, metric, leafsize, workers)
                 return
         tree = KDTree(pts, leafsize=leafsize, metric=metric)
