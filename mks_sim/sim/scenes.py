@@ -53,12 +53,15 @@ class Placement:
         x: world x range of the body origin, or None for the scene's region.
         y: world y range, or None for the region.
         yaw: yaw range, radians.
+        gap_m: least clearance between this object's footprint and the others' (negative:
+            footprints may overlap; dropped objects then land on each other, a pile).
     """
 
     pose: str = "upright"
     x: tuple[float, float] | None = None
     y: tuple[float, float] | None = None
     yaw: tuple[float, float] = (-math.pi, math.pi)
+    gap_m: float | None = None
 
 
 @dataclass(frozen=True)
@@ -245,10 +248,11 @@ def _add_sensor_mounts(root: mjcf.RootElement, centre: np.ndarray) -> None:
 # --------------------------------------------------------------------------- scene files
 
 _SCENE_KEYS = {"name", "description", "region", "support", "flat_parts"}
-_OBJECT_KEYS = {"name", "count", "at", "yaw_deg", "pose", "x", "y", "yaw", "on"}
+_OBJECT_KEYS = {"name", "count", "at", "yaw_deg", "pose", "x", "y", "yaw", "on", "gap_m"}
+_FIXTURE_KEYS = {"size", "at", "z", "rgb"}
 _CLUTTER_KEYS = {"shape", "size", "at", "rgb", "dots"}
 _LIGHT_KEYS = {"name", "pos", "dir", "diffuse", "directional"}
-_TOP_KEYS = {"scene", "table", "object", "clutter", "light"}
+_TOP_KEYS = {"scene", "table", "object", "clutter", "light", "fixture"}
 
 
 def _pair(v: Any, where: str, key: str) -> tuple[float, float]:
@@ -455,6 +459,11 @@ def scene_from_doc(
         if isinstance(yaw_deg, bool) or not isinstance(yaw_deg, int | float):
             raise SpecError(f"{where}: field 'yaw_deg': expected a number, got {yaw_deg!r}")
         yaw0 = math.radians(float(yaw_deg))
+        gap = entry.get("gap_m")
+        if gap is not None and (
+            isinstance(gap, bool) or not isinstance(gap, int | float) or not math.isfinite(gap)
+        ):
+            raise SpecError(f"{where}: field 'gap_m': expected a number (metres), got {gap!r}")
         on = entry.get("on")
         if on is not None and not isinstance(on, str):
             raise SpecError(f"{where}: field 'on': expected an object name, got {on!r}")
@@ -462,7 +471,13 @@ def scene_from_doc(
             body = db_name if k == 0 else f"{db_name}_{k}"
             spec = objects.add_object(root, obj, body_name=body)
             specs.append(spec)
-            placements[body] = Placement(pose, xr, yr, yaw)  # type: ignore[arg-type]
+            placements[body] = Placement(
+                pose,
+                xr,
+                yr,
+                yaw,  # type: ignore[arg-type]
+                None if gap is None else float(gap),
+            )
             xy = (at[0] + 2.2 * spec.reach_m * k, at[1])  # copies side by side
             if on is not None:
                 below = next((s for s in specs if s.name == on), None)
@@ -478,6 +493,8 @@ def scene_from_doc(
             root.find("body", body).pos = (xy[0], xy[1], support_z + spec.rest_height_m)
             if yaw0:
                 root.find("body", body).quat = (math.cos(yaw0 / 2), 0.0, 0.0, math.sin(yaw0 / 2))
+    for i, entry in enumerate(_tables(doc, "fixture", str(path))):
+        _add_fixture(root, i, entry, f"{path}: fixture {i}", support_z)
     for i, entry in enumerate(_tables(doc, "clutter", str(path))):
         where = f"{path}: clutter {i}"
         _unknown(entry, _CLUTTER_KEYS, where)
@@ -505,6 +522,32 @@ def scene_from_doc(
         support_z=support_z,
         placements=placements,
         source=path if path.is_file() else None,
+    )
+
+
+def _add_fixture(
+    root: mjcf.RootElement, index: int, entry: Mapping[str, Any], where: str, support_z: float
+) -> None:
+    """One ``[[fixture]]`` entry: a static box (half extents ``size``) standing on the support
+    at ``at`` (``z``: its bottom above the support) -- e.g. the walls of a bin. Visible to the
+    sensors and collides; not an object (nothing localizes or moves it)."""
+    _unknown(entry, _FIXTURE_KEYS, where)
+    size = _vec(entry.get("size"), 3, where, "size")
+    if min(size) <= 0:
+        raise SpecError(f"{where}: field 'size': expected 3 half extents > 0, got {list(size)}")
+    xy = _pair(entry.get("at", [0.0, 0.0]), where, "at")
+    z = entry.get("z", 0.0)
+    if isinstance(z, bool) or not isinstance(z, int | float) or not math.isfinite(z):
+        raise SpecError(f"{where}: field 'z': expected a number (metres), got {z!r}")
+    rgb = _vec(entry.get("rgb", [0.35, 0.4, 0.5]), 3, where, "rgb")
+    root.worldbody.add(
+        "geom",
+        name=f"fixture_{index}",
+        type="box",
+        size=list(size),
+        pos=(xy[0], xy[1], support_z + float(z) + size[2]),
+        rgba=(*rgb, 1.0),
+        friction=objects.OBJECT_FRICTION,
     )
 
 

@@ -162,7 +162,14 @@ class World:
             spec = specs[name]
             placement = scene.placements.get(name)
             if placement is not None and placement.pose == "drop":
-                self._drop(name, xy, yaw, rng)
+                # Footprints that overlap (a pile, gap_m < 0): released above the objects
+                # already dropped under it, so that nothing starts interpenetrating.
+                floor = scene.support_z
+                for other in dropped:
+                    oxy, r = placed[other][0], specs[other].reach_m
+                    if np.hypot(xy[0] - oxy[0], xy[1] - oxy[1]) < r + spec.reach_m:
+                        floor = max(floor, self._top_z(other) + DROP_CLEARANCE_M)
+                self._drop(name, xy, yaw, rng, floor)
                 dropped.append(name)
                 continue
             self._place(name, xy, yaw, scene.support_z + spec.rest_height_m, spec.rest_quat)
@@ -200,10 +207,24 @@ class World:
         finally:
             m.dof_damping[:] = saved
 
+    def _top_z(self, name: str) -> float:
+        """World z of the highest hull vertex of object ``name`` at its current pose."""
+        spec = next(s for s in self.scene.objects if s.name == name)
+        body = self.data.body(name)
+        if spec.hull is None:
+            return float(body.xpos[2] + spec.reach_m)
+        return float(np.max(spec.hull @ body.xmat.reshape(3, 3)[2] + body.xpos[2]))
+
     def _drop(
-        self, name: str, xy: tuple[float, float], yaw: float, rng: np.random.Generator
+        self,
+        name: str,
+        xy: tuple[float, float],
+        yaw: float,
+        rng: np.random.Generator,
+        floor_z: float | None = None,
     ) -> None:
-        """Release ``name`` at ``xy`` in a uniform random orientation, just above the support."""
+        """Release ``name`` at ``xy`` in a uniform random orientation, just above the support
+        (or above ``floor_z``)."""
         from mks_sim.geometry.transforms import random_rotation
 
         spec = next(s for s in self.scene.objects if s.name == name)
@@ -212,7 +233,8 @@ class World:
         lowest = float(np.min((hull @ R.T)[:, 2]))
         T = np.eye(4)
         T[:3, :3] = R
-        T[:3, 3] = (xy[0], xy[1], self.scene.support_z - lowest + DROP_CLEARANCE_M)
+        base = self.scene.support_z if floor_z is None else floor_z
+        T[:3, 3] = (xy[0], xy[1], base - lowest + DROP_CLEARANCE_M)
         self.set_object_pose(name, T)
 
     def _sample_layout(
@@ -238,13 +260,14 @@ class World:
                 (x0, x1) = pl.x if pl is not None and pl.x is not None else (cx - hx, cx + hx)
                 (y0, y1) = pl.y if pl is not None and pl.y is not None else (cy - hy, cy + hy)
                 yaw0, yaw1 = pl.yaw if pl is not None else (-np.pi, np.pi)
+                gap = _MIN_GAP_M if pl is None or pl.gap_m is None else pl.gap_m
                 for _ in range(_MAX_TRIES):
                     xy = (
                         float(rng.uniform(x0 + r, max(x0 + r, x1 - r))),
                         float(rng.uniform(y0 + r, max(y0 + r, y1 - r))),
                     )
                     if all(
-                        np.hypot(xy[0] - p[0], xy[1] - p[1]) > r + radius[o] + _MIN_GAP_M
+                        np.hypot(xy[0] - p[0], xy[1] - p[1]) > r + radius[o] + gap
                         for o, (p, _) in placed.items()
                     ):
                         break
