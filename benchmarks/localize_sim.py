@@ -4,24 +4,25 @@ For each object (cube and sphere in scene2, the industrial part in the part scen
 sensing mode (all devices healthy; range finder failed, so ``Range_Points`` is served by
 ``Stereo_Points``), localize the object in ``--n`` seeded random layouts and report — not
 assert — the median and 95th-percentile position and rotation errors, the success rate
-(within 5 mm and 5 degrees of the ground truth) and the time per localization.
+(within 5 mm and 5 degrees of the ground truth) and the time per localization: the median
+processing time (after the devices are read: representation, hypotheses, verification; goal
+<= 50 ms) and the median total with sensing (goal <= 100 ms), from ``timing_s``.
 
-Run::
+Run (on an idle machine; one worker so that the two cores do not compete)::
 
-    .venv/bin/python benchmarks/localize_sim.py --n 100 --workers 2 \\
-        --out benchmarks/results/localize_sim.md
+    .venv/bin/python benchmarks/localize_sim.py --n 100 --out benchmarks/results/localize_sim.md
+    .venv/bin/python benchmarks/localize_sim.py --quick        # 10 seeds, a smoke run
 
-Seeds are ``--seed0 .. --seed0 + n - 1``; the same seeds are used for every object and mode.
+Seeds are ``--seed0 .. --seed0 + n - 1`` (default 2000..2099: reporting seeds; the engine was
+tuned on seeds 0..19 and earlier on 1000..1099); the same seeds for every object and mode.
 """
 
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import json
 import multiprocessing
 import os
-import platform
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -29,6 +30,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _provenance import header_lines  # noqa: E402
 
 MODES: dict[str, tuple[str, ...]] = {"healthy": (), "stereo": ("range_finder",)}
 GOALS = {
@@ -58,6 +62,7 @@ def _trial(job: tuple[str, int, tuple[str, ...]]) -> dict[str, Any]:
             "success": False,
             "provenance": {},
             "time_s": float("nan"),
+            "timing_s": {},
             "exception": f"{type(exc).__name__}: {exc}",
         }
     rec["wall_s"] = time.perf_counter() - t0
@@ -71,6 +76,9 @@ def _stats(recs: list[dict[str, Any]]) -> dict[str, Any]:
     pos = np.array([r["error"]["position_mm"] for r in found], dtype=float)
     rot = np.array([r["error"]["rotation_deg"] for r in found], dtype=float)
     t = np.array([r["time_s"] for r in recs if np.isfinite(r.get("time_s", np.nan))], dtype=float)
+    timed = [r["timing_s"] for r in recs if r.get("timing_s")]
+    total = np.array([x["total"] for x in timed], dtype=float)
+    processing = np.array([x["processing"] for x in timed], dtype=float)
 
     def q(a: np.ndarray, p: float) -> float:
         return float(np.percentile(a, p)) if len(a) else float("nan")
@@ -88,6 +96,9 @@ def _stats(recs: list[dict[str, Any]]) -> dict[str, Any]:
         "rot_p95": q(rot, 95),
         "time_median": q(t, 50),
         "time_mean": float(np.mean(t)) if len(t) else float("nan"),
+        "processing_median": q(processing, 50),
+        "processing_p95": q(processing, 95),
+        "total_median": q(total, 50),
         "range_points_served_by": served,
         "exceptions": [r["exception"] for r in recs if "exception" in r][:3],
         "failures": [
@@ -101,8 +112,9 @@ def _stats(recs: list[dict[str, Any]]) -> dict[str, Any]:
 def _table(stats: dict[tuple[str, str], dict[str, Any]]) -> str:
     head = (
         "| object | mode (Range_Points from) | n | success (<=5 mm, <=5 deg) | position median / p95 (mm)"
-        " | rotation median / p95 (deg) | time per localization median / mean (s) | goal (median) |\n"
-        "|---|---|---|---|---|---|---|---|\n"
+        " | rotation median / p95 (deg) | processing median / p95 (ms, goal <= 50)"
+        " | total with sensing median (ms, goal <= 100) | goal (median) |\n"
+        "|---|---|---|---|---|---|---|---|---|\n"
     )
     rows = []
     for (obj, mode), s in stats.items():
@@ -112,7 +124,8 @@ def _table(stats: dict[tuple[str, str], dict[str, Any]]) -> str:
             f"| {obj} | {mode} ({served}) | {s['n']} | {s['success']}/{s['n']} "
             f"({100.0 * s['success'] / max(s['n'], 1):.1f} %) | {s['pos_median']:.2f} / "
             f"{s['pos_p95']:.2f} | {s['rot_median']:.2f} / {s['rot_p95']:.2f} | "
-            f"{s['time_median']:.2f} / {s['time_mean']:.2f} | <= {g[0]:g} mm, <= {g[1]:g} deg |"
+            f"{1000 * s['processing_median']:.0f} / {1000 * s['processing_p95']:.0f} | "
+            f"{1000 * s['total_median']:.0f} | <= {g[0]:g} mm, <= {g[1]:g} deg |"
         )
     return head + "\n".join(rows) + "\n"
 
@@ -120,7 +133,8 @@ def _table(stats: dict[tuple[str, str], dict[str, Any]]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=100, help="random layouts per object and mode")
-    ap.add_argument("--seed0", type=int, default=1000, help="first seed")
+    ap.add_argument("--seed0", type=int, default=2000, help="first seed (reporting: 2000)")
+    ap.add_argument("--quick", action="store_true", help="10 seeds per object and mode")
     ap.add_argument("--workers", type=int, default=1, help="parallel processes (spawn)")
     ap.add_argument("--objects", nargs="+", default=list(GOALS), choices=list(GOALS))
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=list(MODES))
@@ -128,6 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, help="write every trial record here (JSON)")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.n = min(args.n, 10)
+    header = header_lines()  # the load average before anything runs
     from tqdm import tqdm
 
     jobs = [
@@ -163,19 +180,18 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.write_text(json.dumps({f"{o}/{m}": v for (o, m), v in recs.items()}, indent=1))
     if args.out:
-        cmd = " ".join(["python", "benchmarks/localize_sim.py", *(argv or sys.argv[1:])])
         lines = [
             "# Localization from simulated sensors (`benchmarks/localize_sim.py`)",
             "",
-            f"- date: {dt.datetime.now(dt.UTC).strftime('%Y-%m-%d %H:%M UTC')}",
-            f"- machine: {os.cpu_count()} cores ({platform.processor() or platform.machine()}), "
-            f"shared with other jobs; {args.workers} worker process(es); wall {wall:.0f} s",
-            f"- command: `{cmd}`",
+            *header,
+            f"- {args.workers} worker process(es); wall {wall:.0f} s",
             f"- seeds {args.seed0}..{args.seed0 + args.n - 1} per object and mode; success = "
             "within 5 mm and 5 degrees of the ground truth (cube rotation modulo its 24 "
             "symmetries, sphere rotation not observable = 0)",
-            "- time per localization: `localize_object` (sensing + localization), not the world "
-            "build",
+            "- processing: `localize_object` after the devices are read (`timing_s.processing`:"
+            " representation, hypotheses, verification); total: the whole call with sensing "
+            "(the first call of a process also loads the model database); the world build is "
+            "not timed",
             "",
             table,
         ]
