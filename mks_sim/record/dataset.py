@@ -255,7 +255,7 @@ def record_episodes(
             dataset = minari.create_dataset_from_buffers(
                 dataset_id=path.name,
                 buffer=[],  # episodes are written as they come in (_InOrderWriter)
-                env=spec,
+                env=env.env,  # an Env, not a spec: Minari would gym.make another one
                 eval_env=spec,
                 algorithm_name=POLICY,
                 author="mks_sim",
