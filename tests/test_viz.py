@@ -3,6 +3,7 @@ own reader, and no `rerun` import when the option is not given."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import subprocess
 import sys
@@ -17,6 +18,11 @@ from mks_sim.errors import SpecError
 from mks_sim.geometry.meshes import box_mesh
 from mks_sim.viz import NullRecorder, RerunSpec, open_recorder, parse_rerun_spec
 from mks_sim.viz.scene import feature_edges, wireframe
+
+# The recording tests need the viz extra (rerun-sdk); without it they skip with this reason.
+needs_rerun = pytest.mark.skipif(
+    importlib.util.find_spec("rerun") is None, reason="rerun-sdk (the viz extra) not installed"
+)
 
 # --------------------------------------------------------------------------- helpers
 
@@ -110,6 +116,7 @@ def test_box_wireframe_is_its_twelve_edges() -> None:
 # --------------------------------------------------------------------------- recordings
 
 
+@needs_rerun
 @pytest.mark.slow
 def test_localize_recording_reads_back(tmp_path: Path) -> None:
     from mks_sim.cli.localize import run_trial
@@ -170,6 +177,7 @@ def test_logging_off_imports_no_rerun() -> None:
     assert result == {"rc": 0, "rerun": False}
 
 
+@needs_rerun
 def test_localize_cloud_recording_reads_back(tmp_path: Path) -> None:
     from mks_sim.geometry.scan import synthetic_scan
     from mks_sim.geometry.transforms import make_transform
@@ -214,6 +222,7 @@ class _Device:
         return self.reading
 
 
+@needs_rerun
 def test_fallbacks_streams_and_hypotheses_without_a_simulator(tmp_path: Path) -> None:
     """Fake devices on the test sensor files: the range finder fails, stereo serves; the
     text log says so, the stream is the stereo rows, hypotheses are posed cube wireframes."""
@@ -276,6 +285,7 @@ def test_robot_meshes_are_posed_as_mujoco_poses_them() -> None:
                                    atol=1e-9)  # fmt: skip
 
 
+@needs_rerun
 @pytest.mark.slow
 def test_grasp_episode_recording_reads_back_and_changes_nothing(tmp_path: Path) -> None:
     from mks_sim.sim import names
@@ -322,3 +332,24 @@ def test_grasp_episode_recording_reads_back_and_changes_nothing(tmp_path: Path) 
     first_chosen = rec["/world/localization/cube/chosen"]["Transform3D:translation"][0][0]
     first_truth = rec["/eval/truth/cube"]["Transform3D:translation"][0][0]
     assert np.linalg.norm(np.subtract(first_chosen, first_truth)) < 0.005
+
+
+@needs_rerun
+def test_episodes_follow_one_another_on_sim_time(tmp_path: Path) -> None:
+    from rerun.chunk import RrdReader
+
+    path = tmp_path / "t.rrd"
+    with open_recorder(parse_rerun_spec(f"save:{path}"), "test") as recorder:
+        for episode, times in ((4, (0.0, 2.5)), (5, (0.0, 1.0)), (5, (1.5,))):
+            recorder.set_episode(episode, 1)
+            for t in times:
+                recorder.set_time(t)
+                recorder.log_text(f"{episode} {t}")
+    rows = []
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path == "/log":
+            batch = chunk.to_record_batch()
+            rows += zip(batch.column("sim_time").to_pylist(), batch.column("episode").to_pylist())
+    seconds = sorted((t.total_seconds() if hasattr(t, "total_seconds") else t / 1e9, e)
+                     for t, e in rows)  # fmt: skip
+    assert seconds == [(0.0, 4), (2.5, 4), (2.5, 5), (3.5, 5), (4.0, 5)]

@@ -84,7 +84,10 @@ class RerunRecorder:
         self._robot: list[Any] = []
         self._robot_joints: list[str] = []
         self._robot_bodies: list[tuple[str, int]] = []
-        self._time = 0.0
+        self._time = 0.0  # the world's simulated time (MjData.time)
+        self._offset = 0.0  # where the current episode starts on the sim_time timeline
+        self._end = 0.0  # the latest sim_time logged
+        self._episode: int | None = None
         self._world: Any = None
         self._devices: dict[str, DeviceTap] = {}
         self._read: set[str] = set()
@@ -96,11 +99,15 @@ class RerunRecorder:
 
     def set_time(self, sim_time_s: float) -> None:
         self._time = float(sim_time_s)
-        self.rec.set_time("sim_time", duration=self._time)
+        t = self._offset + self._time
+        self._end = max(self._end, t)
+        self.rec.set_time("sim_time", duration=t)
 
     def set_episode(self, episode: int | None, attempt: int | None = None) -> None:
         self._last_cloud.clear()
         if episode is not None:
+            if episode != self._episode:  # episodes follow one another on sim_time
+                self._offset, self._episode = self._end, episode
             self.rec.set_time("episode", sequence=int(episode))
         if attempt is not None:
             self.rec.set_time("attempt", sequence=int(attempt))
