@@ -620,7 +620,8 @@ class Localization:
         warnings: what the caller should hear about (e.g. model and scene sizes that differ by
             orders of magnitude: wrong units or a missing ``scale``).
         timing: seconds per stage (``graph``, ``table``, ``grouping``, ``matching``,
-            ``refinement``, ``total``).
+            ``refinement``; the engine's stage names ``representation`` = graph + table +
+            grouping, ``hypotheses`` = matching, ``verification`` = refinement; ``total``).
     """
 
     found: bool
@@ -943,6 +944,10 @@ def localize_cloud(
     results = results[:max_hypotheses]
     timing["matching"] = t_match
     timing["refinement"] = t_refine
+    # the engine's common stage names (``localize --json`` reports the same)
+    timing["representation"] = timing["graph"] + timing["table"] + timing["grouping"]
+    timing["hypotheses"] = t_match
+    timing["verification"] = t_refine
     timing["total"] = time.perf_counter() - t0
     found = bool(results) and results[0][0].score >= min_score
     log.info(
@@ -1061,7 +1066,7 @@ _MESH_EXT = (".stl", ".obj")
 _CLOUD_EXT = (".pcd", ".npy", ".npz")
 
 
-def load_model(spec: Any, *, name: str | None = None) -> LocalizableModel:
+def load_model(spec: Any, *, name: str | None = None, kind: str = "auto") -> LocalizableModel:
     """Resolve a model: an object implementing the protocol, a mesh, a file, or a name.
 
     Args:
@@ -1070,6 +1075,9 @@ def load_model(spec: Any, *, name: str | None = None) -> LocalizableModel:
             ``.npz``) of the whole model surface; or a name in the model database
             (``mks_sim.models.database.ModelDatabase``).
         name: model name for reports (default: the file stem or the given name).
+        kind: for a mesh: ``auto`` (a mostly curved mesh -> ``freeform``, a sphere ->
+            ``sphere``, else ``polyhedral``; :func:`mks_sim.localization.model.mesh_kind`),
+            or one of ``polyhedral``, ``freeform``, ``sphere``.
 
     Raises:
         NotFound: no such file or model name.
@@ -1077,12 +1085,14 @@ def load_model(spec: Any, *, name: str | None = None) -> LocalizableModel:
     """
     if isinstance(spec, LocalizableModel):
         return spec
+    from mks_sim.localization.model import model_from_mesh
+
     if type(spec).__name__ == "Mesh":
-        return PolyhedralModel.from_mesh(spec, name or "mesh")
+        return model_from_mesh(spec, name or "mesh", kind)[0]  # type: ignore[no-any-return]
     if isinstance(spec, str | Path):
         path = Path(spec)
         if path.suffix.lower() in (*_MESH_EXT, *_CLOUD_EXT, ".ply") or path.exists():
-            return _load_model_file(path, name or path.stem)
+            return _load_model_file(path, name or path.stem, kind)
         return _load_model_name(str(spec))
     raise DataError(
         f"load_model: expected a model name, file path, Mesh or LocalizableModel, "
@@ -1090,7 +1100,7 @@ def load_model(spec: Any, *, name: str | None = None) -> LocalizableModel:
     )
 
 
-def _load_model_file(path: Path, name: str) -> LocalizableModel:
+def _load_model_file(path: Path, name: str, kind: str = "auto") -> LocalizableModel:
     if not path.is_file():
         raise NotFound(f"model file not found: {path}")
     ext = path.suffix.lower()
@@ -1099,8 +1109,9 @@ def _load_model_file(path: Path, name: str) -> LocalizableModel:
     # A PLY with faces is a mesh (its errors are shown as they are); without, a point cloud.
     if ext in _MESH_EXT or (ext == ".ply" and _ply.has_element(path, "face")):
         from mks_sim.io.mesh import read_mesh
+        from mks_sim.localization.model import model_from_mesh
 
-        return PolyhedralModel.from_mesh(read_mesh(path), name)
+        return model_from_mesh(read_mesh(path), name, kind)[0]  # type: ignore[no-any-return]
     from mks_sim.io.pointcloud import read_point_cloud
 
     cloud = read_point_cloud(path)

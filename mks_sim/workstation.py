@@ -55,6 +55,7 @@ from scipy.spatial import cKDTree
 
 from mks_sim.errors import MksError, NotFound, SensorFailure
 from mks_sim.geometry.points import fibonacci_sphere
+from mks_sim.localization.model import model_kind
 from mks_sim.localization.representation import Representation, RepresentationConfig
 from mks_sim.localization.verify import Consistency, consistency, rank
 from mks_sim.models.pose import PoseHypothesis
@@ -275,7 +276,7 @@ def localize_object(
     points = rep.points
     diag["representation_points"] = len(points)
 
-    kind = _model_kind(model)
+    kind = model_kind(model)
     diag["kind"] = kind
     if kind == "sphere":
         hyps, extra = _localize_sphere(model, snap, sensor, rep, rng, timing)
@@ -310,14 +311,6 @@ def localize_object(
 
 #: Alias used by the grasp episode (``mks_sim.tasks.episode.sensor_localize_fn``).
 localize = localize_object
-
-
-def _model_kind(model: Any) -> str:
-    """The model's kind: ``"sphere"`` (a radius), else ``"polyhedral"`` (a surface)."""
-    kind = getattr(model, "kind", None)
-    if isinstance(kind, str):
-        return kind
-    return "sphere" if isinstance(getattr(model, "radius_m", None), float) else "polyhedral"
 
 
 def _noise_scale(table: Plane | None, spacing: float) -> float:

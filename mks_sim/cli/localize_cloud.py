@@ -3,6 +3,7 @@
 Examples::
 
     mks-sim localize-cloud --model part.stl --scene scan.ply
+    mks-sim localize-cloud --model torus.stl --scene scan.ply --kind auto   # -> freeform
     mks-sim localize-cloud --model cube_model.npy --scene scan.pcd --json
     mks-sim localize-cloud --model part_mm.stl --scale 0.001 --scene scan.ply --viewpoint 0.3 0.2 0.45
 """
@@ -56,6 +57,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="detect and remove a supporting plane (auto, default) or keep all points",
     )
     parser.add_argument(
+        "--kind",
+        choices=("auto", "polyhedral", "freeform", "sphere"),
+        default="auto",
+        help="model kind for a mesh: auto (default: a mostly curved mesh -> freeform, a "
+        "sphere -> sphere, else polyhedral), or force one",
+    )
+    parser.add_argument(
         "--min-score", type=float, default=0.5, help="score needed for found (default 0.5)"
     )
     parser.add_argument(
@@ -64,9 +72,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_rerun_argument(parser)
 
 
-def _result_json(loc: Any, n_points: int, dropped: int) -> dict[str, Any]:
+def _result_json(loc: Any, n_points: int, dropped: int, kind: str = "") -> dict[str, Any]:
     return {
         "found": bool(loc.found),
+        "kind": kind,
         "hypotheses": [
             {
                 "matrix": np.round(h.matrix, 9).tolist(),
@@ -103,7 +112,7 @@ def _print_text(result: dict[str, Any], model_name: str) -> None:
             f"  segment {i}: {s['points']} points, {s['planes']} planes, {s['vertexes']} vertexes\n"
         )
     verdict = "FOUND" if result["found"] else "NOT FOUND"
-    out.write(f"model {model_name!r}: {verdict}\n")
+    out.write(f"model {model_name!r} ({result['kind']}): {verdict}\n")
     for i, h in enumerate(result["hypotheses"]):
         out.write(
             f"hypothesis {i}: score {h['score']:.3f}, votes {h['votes']}, "
@@ -122,6 +131,7 @@ def _print_text(result: dict[str, Any], model_name: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from mks_sim.io.pointcloud import read_point_cloud
+    from mks_sim.localization.model import model_kind
     from mks_sim.localize import load_model, localize_cloud
 
     if not np.isfinite(args.scale) or args.scale <= 0:
@@ -130,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
         raise DataError(f"--max-hypotheses: expected >= 1, got {args.max_hypotheses}")
     from mks_sim.io.units import require_spread
 
-    model = load_model(args.model)
+    model = load_model(args.model, kind=args.kind)
     cloud = read_point_cloud(args.scene)
     require_spread(cloud.points, str(args.scene))  # a degenerate scene: a clear message, fast
     try:
@@ -152,7 +162,9 @@ def run(args: argparse.Namespace) -> int:
         recorder.log_cloud(cloud.points, loc, model_points=model_points * args.scale,
                            name=str(getattr(model, "name", "model")))  # fmt: skip
     dropped = int(cloud.dropped_nan) + int(loc.dropped_nan)
-    result = _result_json(loc, len(cloud.points) + int(cloud.dropped_nan), dropped)
+    result = _result_json(
+        loc, len(cloud.points) + int(cloud.dropped_nan), dropped, model_kind(model)
+    )
     if args.json:
         json.dump(result, sys.stdout, indent=2)
         sys.stdout.write("\n")
