@@ -336,11 +336,14 @@ def scene_objects(name: str | Path) -> list[str]:
 
 
 def scene_with_object(obj: str) -> str | None:
-    """The first shipped scene (by name) that lists database object ``obj``, or None."""
-    for name in scene_names():
-        if name not in _SCENES and obj in scene_objects(name):
-            return name
-    return None
+    """The shipped scene for database object ``obj``: the scene named like it, else the one
+    holding it with the fewest objects (then by name); None when no scene lists it."""
+    held = [
+        (name != obj, len(objs), name)
+        for name in scene_names()
+        if name not in _SCENES and obj in (objs := scene_objects(name))
+    ]
+    return min(held)[2] if held else None
 
 
 def load_scene_file(
