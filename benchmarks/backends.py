@@ -3,7 +3,6 @@ with the same number of CPUs (issue 11, goal: Ray / pool >= 0.9), same seeds on 
 
     .venv/bin/python benchmarks/backends.py                 # 24 episodes, 2 workers
     .venv/bin/python benchmarks/backends.py --quick         # 4 sphere episodes (smoke run)
-    .venv/bin/python benchmarks/backends.py --single-thread # BLAS threads = 1 on both sides
 
 Writes benchmarks/results/backends.md (and backends.json beside it). Ray's start-up
 (``ray.init``) is timed apart: on a cluster it is paid once, not per sweep.
@@ -49,13 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true",
                    help="4 sphere episodes, printed only (unless --out is given)")  # fmt: skip
     p.add_argument("--out", type=Path, default=None, help="default results/backends.md")
-    p.add_argument("--single-thread", action="store_true",
-                   help="OMP/OpenBLAS threads = 1 in the pool's workers too (Ray sets it per "
-                   "task): compares the engines alone")  # fmt: skip
     args = p.parse_args(argv)
-    if args.single_thread:  # inherited by the spawned pool workers and the Ray workers
-        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-            os.environ[var] = "1"
     if args.quick:
         args.episodes, args.objects = 4, ["sphere"]
     elif args.out is None:
@@ -99,7 +92,11 @@ def main(argv: list[str] | None = None) -> int:
         *header,
         f"- {n} grasp episodes ({', '.join(args.objects)} in turn), seeds {args.seed}.."
         f"{args.seed + n - 1}, `--workers {args.workers}` = Ray `num_cpus={args.workers}`; "
-        f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')} (Ray sets 1 per task)",
+        + (
+            "one BLAS/OpenMP thread per worker on both (the pool's default, as Ray sets)"
+            if "OMP_NUM_THREADS" not in os.environ
+            else f"OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']} exported"
+        ),
         "",
         "| backend | wall s | episodes / min | ratio to the pool |",
         "|---|---|---|---|",

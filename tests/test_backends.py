@@ -45,6 +45,10 @@ def _fail_first_or_sleep(job: tuple[str, int]) -> dict:
     return {"n": n}
 
 
+def _threads(job: int) -> dict:
+    return {"n": job, "omp": os.environ.get("OMP_NUM_THREADS")}
+
+
 @pytest.fixture(scope="module")
 def ray_session():
     ray = pytest.importorskip("ray")
@@ -96,6 +100,16 @@ def test_local_pool_stops_on_an_episode_error(tmp_path: Path) -> None:
         run_episodes(jobs, fn=_fail_first_or_sleep, workers=2, progress=False)
     # The jobs not yet handed to a worker were cancelled, not run to the end.
     assert len(list(tmp_path.glob("ran-*"))) < 11
+
+
+def test_pool_workers_get_one_blas_thread_unless_exported(monkeypatch) -> None:
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    results = run_episodes([0, 1], fn=_threads, workers=2, progress=False)
+    assert [r["omp"] for r in results] == ["1", "1"]  # as Ray gives its tasks
+    assert "OMP_NUM_THREADS" not in os.environ  # the parent's environment is left as it was
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    results = run_episodes([0, 1], fn=_threads, workers=2, progress=False)
+    assert [r["omp"] for r in results] == ["3", "3"]
 
 
 def test_bad_backend_arguments() -> None:

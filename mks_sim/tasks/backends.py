@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import multiprocessing
+import os
 import socket
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -177,6 +178,38 @@ def _run_pool(
     finish: Callable[[int, dict], Any],
 ) -> list[Any]:
     """Spawn-started process pool; a broken pool is replaced and its unfinished jobs rerun."""
+    with _one_thread_per_worker():
+        return _pool_loop(jobs, fn, workers, max_retries, finish)
+
+
+#: Thread-pool sizes of OpenMP / OpenBLAS / MKL, read when a worker loads numpy.
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _one_thread_per_worker() -> Iterator[None]:
+    """Spawned workers get one BLAS/OpenMP thread each, as Ray gives its tasks (one worker
+    per core; more threads only oversubscribe). A value the user exported is kept."""
+    saved = {var: os.environ.get(var) for var in _THREAD_VARS}
+    for var in _THREAD_VARS:
+        os.environ.setdefault(var, "1")
+    try:
+        yield
+    finally:
+        for var, value in saved.items():
+            if value is None:
+                os.environ.pop(var, None)
+            else:
+                os.environ[var] = value
+
+
+def _pool_loop(
+    jobs: Sequence[Any],
+    fn: EpisodeFn,
+    workers: int,
+    max_retries: int,
+    finish: Callable[[int, dict], Any],
+) -> list[Any]:
     ctx = multiprocessing.get_context("spawn")
     results: dict[int, Any] = {}
     breaks = 0
