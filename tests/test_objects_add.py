@@ -103,6 +103,14 @@ def test_bad_meshes_are_rejected(tmp_path: Path, make, units: str, match: str) -
     assert not (tmp_path / "out" / "bad.toml").exists()
 
 
+def test_existing_name_is_refused(tmp_path: Path) -> None:
+    from mks_sim.errors import SpecError
+
+    src = _export_mm(gen.wedge(), tmp_path / "w.stl")
+    with pytest.raises(SpecError, match="'cube' already exists in .*cube_5cm.toml"):
+        add_object(src, "cube", tmp_path / "m", units="mm")
+
+
 def test_small_object_warns(tmp_path: Path) -> None:
     src = tmp_path / "tiny.stl"
     trimesh.creation.box((3.0, 3.0, 3.0)).export(src)  # 3 mm: smaller than the hand handles

@@ -388,6 +388,13 @@ def add_object(
             raise SpecError(f"{opt}: expected a number > 0, got {v!r}")
     if kind not in ("auto", "polyhedral", "freeform"):
         raise SpecError(f"--kind: expected auto, polyhedral or freeform, got {kind!r}")
+    from mks_sim.models.objects import load_objects
+
+    existing = load_objects().get(name)  # the built-in folder and MKS_SIM_MODELS
+    if existing is not None and existing.source != (out / f"{name}.toml").resolve():
+        raise SpecError(
+            f"--name: object {name!r} already exists in {existing.source}; choose another name"
+        )
     sym_value = _parse_symmetry_option(symmetry)
     s = UNITS[units] if units is not None else (scale if scale is not None else 1.0)
     tm = _load_trimesh(mesh_path)
