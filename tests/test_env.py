@@ -183,6 +183,23 @@ def test_scripted_policy_continuous_grip_lifts(obj: str, seed: int) -> None:
         env.close()
 
 
+def test_v1_points_are_the_scan_of_the_last_sensing() -> None:
+    env = _make("mks_sim/Grasp-v1", object="cube", n_points=64)
+    try:
+        assert "points" in env.observation_space.spaces  # v1 observes them by default
+        obs, _ = env.reset(seed=2)
+        assert obs["n_points"][0] > 0
+        finder = env.unwrapped._devices["range_finder"]
+        reads = []
+        read = finder.read
+        finder.read = lambda *a, **k: reads.append(1) or read(*a, **k)
+        after = env.step(np.zeros(5, np.float32))[0]
+        assert not reads  # no scan per step (v0 scans every step)
+        assert np.array_equal(after["points"], obs["points"])
+    finally:
+        env.close()
+
+
 def test_nan_action_rejected_and_env_stays_usable() -> None:
     env = _make("mks_sim/Grasp-v1", object="cube")
     try:

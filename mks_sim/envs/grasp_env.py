@@ -429,18 +429,38 @@ class GraspEnv(gym.Env):
 
 
 class GraspEnvV1(GraspEnv):
-    """``mks_sim/Grasp-v1``: v0 with a continuous grip.
+    """``mks_sim/Grasp-v1``: v0 with a continuous grip and the range points of the last
+    sensing.
 
     ``action[4]`` in [-1, 1] is the finger velocity as a fraction of the finger actuators'
     range (+1 closes at full speed, -1 opens at full speed, 0 holds the fingers where they
-    are), so a policy can close gently until the pads touch and then squeeze. Everything
-    else is as in :class:`GraspEnv`.
+    are), so a policy can close gently until the pads touch and then squeeze.
+
+    ``observe_points`` defaults to True and ``obs["points"]`` holds the range finder's scan
+    taken with the localization (at ``reset`` and every ``resense_every`` steps), like
+    ``pose_estimate``: a scan is a sensing act, not a per-step read (v0 scans on every step,
+    which cost two thirds of a step). The scripted policy needs the points to keep its
+    fingertips off the clutter (the closed loop uses them the same way). Everything else is
+    as in :class:`GraspEnv`.
     """
 
     continuous_grip = True
 
+    def __init__(self, object: str = "cube", observe_points: bool = True, **kwargs: Any) -> None:
+        self._scan: tuple[np.ndarray, np.ndarray] | None = None
+        super().__init__(object=object, observe_points=observe_points, **kwargs)
+
     def _grip(self, command: float) -> float:
         return command
+
+    def _sense(self) -> None:
+        super()._sense()
+        self._scan = super()._points() if "points" in self._obs_keys else None
+
+    def _points(self) -> tuple[np.ndarray, np.ndarray]:
+        assert self._scan is not None
+        points, count = self._scan
+        return points.copy(), count.copy()
 
 
 def _checked_action(action: Any) -> np.ndarray:

@@ -37,16 +37,25 @@ class ScriptedGraspPolicy:
         env: the (unwrapped) env, for its task only (the object's mesh comes from the model
             database).
         gain: fraction of the remaining distance (commanded target to goal) per step.
+        slow: fraction of the env's largest step used while descending and lifting (the
+            arm interpolates in joint space, so a fast Cartesian descent bows sideways: at
+            2 cm per step a fingertip strayed 8 mm and landed on the cube).
         close_grip: finger velocity while closing before both sides touch (v1 only).
         squeeze_grip: finger velocity once both sides touch and while lifting (v1 only).
     """
 
     def __init__(
-        self, env: Any, gain: float = 0.7, close_grip: float = 0.6, squeeze_grip: float = 1.0
+        self,
+        env: Any,
+        gain: float = 0.7,
+        close_grip: float = 0.6,
+        squeeze_grip: float = 1.0,
+        slow: float = 0.4,
     ) -> None:
         self.task = env.task
         self.obj = load_object(self.task.object)
         self.gain = gain
+        self.slow = slow
         self.continuous = continuous = bool(getattr(env, "continuous_grip", False))
         self.close_grip = close_grip if continuous else 1.0
         self.squeeze_grip = squeeze_grip if continuous else 1.0
@@ -57,12 +66,12 @@ class ScriptedGraspPolicy:
         self._yaw = 0.0  # commanded yaw, radians
 
     def _goal_action(
-        self, obs: dict[str, Any], goal: np.ndarray, yaw: float, grip: float
+        self, obs: dict[str, Any], goal: np.ndarray, yaw: float, grip: float, speed: float = 1.0
     ) -> np.ndarray:
         if self._target is None:
             self._target = np.asarray(obs["pinch_pos"], dtype=float).copy()
             self._yaw = float(obs["pinch_yaw"][0])
-        delta = np.clip((goal - self._target) * self.gain / MAX_STEP_M, -1.0, 1.0)
+        delta = np.clip((goal - self._target) * self.gain / MAX_STEP_M, -speed, speed)
         dyaw = float(np.clip(wrap_angle(yaw - self._yaw) * self.gain / MAX_YAW_RAD, -1.0, 1.0))
         # The env's own update (grasp_env.GraspEnv.step), so the model stays in step with it.
         self._target = self._target + delta * MAX_STEP_M
@@ -106,7 +115,7 @@ class ScriptedGraspPolicy:
         if self.phase == "descend":
             if np.linalg.norm(grasp - pinch) < 0.004:
                 self.phase, self._count = "close", 0
-            return self._goal_action(obs, grasp, plan.yaw_rad, open_grip)
+            return self._goal_action(obs, grasp, plan.yaw_rad, open_grip, self.slow)
         if self.phase == "close":
             self._count += 1
             t = np.nan_to_num(np.asarray(obs["touch"], dtype=float), nan=-1.0)
@@ -122,4 +131,6 @@ class ScriptedGraspPolicy:
             if self._count >= 3:
                 self.phase = "lift"
             return self._goal_action(obs, grasp, plan.yaw_rad, self.squeeze_grip)
-        return self._goal_action(obs, plan.lifted_world, plan.yaw_rad, self.squeeze_grip)
+        return self._goal_action(
+            obs, plan.lifted_world, plan.yaw_rad, self.squeeze_grip, self.slow
+        )
