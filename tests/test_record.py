@@ -133,6 +133,8 @@ def test_record_dir_is_checked_before_any_episode(tmp_path: Path, capsys) -> Non
         check_record_dir(full)
     with pytest.raises(MksError, match=r"NAME-vVERSION \(e.g. grasp-cube-v0\), got 'cube'"):
         check_record_dir(tmp_path / "cube")
+    with pytest.raises(MksError, match="expected a folder whose parent exists"):
+        check_record_dir(tmp_path / "missing" / "grasp-cube-v0")
     assert main(["grasp", "--object", "cube", "--record", str(tmp_path / "a-v0"),
                  "--video", str(tmp_path / "a.mp4")]) == 2  # fmt: skip
     assert not (tmp_path / "a-v0").exists()

@@ -82,8 +82,8 @@ def check_record_dir(directory: str | os.PathLike[str]) -> Path:
     """Validate ``--record DIR`` before any episode runs; return it as an absolute path.
 
     Raises:
-        MksError: Minari missing; ``DIR`` is a file, a non-empty folder, or not named like a
-            Minari dataset id (``NAME-vN``).
+        MksError: Minari missing; ``DIR`` is a file, a non-empty folder, not named like a
+            Minari dataset id (``NAME-vN``), or its parent is missing or not writable.
     """
     _import_minari()
     path = Path(directory).expanduser().resolve()
@@ -99,6 +99,13 @@ def check_record_dir(directory: str | os.PathLike[str]) -> Path:
             f"--record {directory}: expected a folder named like a Minari dataset id, "
             f"NAME-vVERSION (e.g. grasp-cube-v0), got {path.name!r}"
         )
+    if not path.parent.is_dir():
+        raise MksError(
+            f"--record {directory}: expected a folder whose parent exists (no folder "
+            f"'{path.parent}'; create it first)"
+        )
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        raise MksError(f"--record {directory}: expected a writable parent folder '{path.parent}'")
     return path
 
 
