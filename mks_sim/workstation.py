@@ -416,7 +416,7 @@ def _localize_polyhedral(
         extra["rotinv_maxima"] = len(coarse)
         timing["hypotheses"] += time.perf_counter() - t
         t = time.perf_counter()
-        refined = _refine_near(_best_coarse(coarse, model, objects, d, 3), model, objects, d, rng)
+        refined = _refine_near(_best_coarse(coarse, model, objects, d, 2), model, objects, d, rng)
         extra["rotinv_refined"] = len(refined)
         candidates += refined
         timing["verification"] += time.perf_counter() - t
@@ -425,7 +425,7 @@ def _localize_polyhedral(
 
     # 6. scene consistency of the best candidates over the whole cloud
     t = time.perf_counter()
-    top = _top(candidates, 8)
+    top = _top(candidates, 5)
     candidates = [candidates[i] for i in top]
     checks = [
         consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree)
@@ -434,9 +434,11 @@ def _localize_polyhedral(
     order, good = rank(candidates, checks)
     timing["verification"] += time.perf_counter() - t
     extra["inlier_distance_m"] = d
-    # support segments as the sensors separate objects: SPG components over 12 mm edges
-    wide = object_segments(rep, surface.size, keep=keep, gap=rep.gap, merge=False)
-    unexplained = _unexplained_segments(wide, candidates, checks, model, d)
+    unexplained: list[Any] = []
+    if table is not None and _best_covers_little(candidates, checks, order, model, objects, d):
+        # support segments as the sensors separate objects: SPG components over 12 mm edges
+        wide = object_segments(rep, surface.size, keep=keep, gap=rep.gap, merge=False)
+        unexplained = _unexplained_segments(wide, candidates, checks, model, d)
     if table is not None and unexplained:
         # The object rests on the table: hypotheses from every support face of the model put
         # on the sensed table plane (yaw from the footprint's principal axes and 8 fixed
@@ -459,10 +461,11 @@ def _localize_polyhedral(
             "ok": int(sum(c.ok for c in checks2)),
             "seconds": time.perf_counter() - t,
         }
-    # Polish: the two best-ranked candidates, passed or not, get a full ICP on the points
-    # near them and are checked again (coarse starts stop short).
+    # Polish: the best-ranked candidate (the two best when it failed the check) gets a full
+    # ICP on the points near it and is checked again (coarse starts stop short).
     t = time.perf_counter()
-    polished = _refine_near([candidates[i] for i in order[:2]], model, objects, d, rng)
+    n_polish = 1 if order and checks[order[0]].ok else 2
+    polished = _refine_near([candidates[i] for i in order[:n_polish]], model, objects, d, rng)
     if polished:
         checks3 = [
             consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree)
@@ -522,6 +525,28 @@ def _known_sphere_radii() -> tuple[float, ...]:
     return tuple(sorted(set(radii)))
 
 
+def _best_covers_little(
+    candidates: list[PoseHypothesis],
+    checks: list[Consistency],
+    order: list[int],
+    model: Any,
+    objects: FloatArray,
+    d: float,
+) -> bool:
+    """No consistent candidate, or the best shows less of the model's surface than one view
+    does (:data:`mks_sim.localize.VISIBLE_FRACTION` of its samples with an object point
+    nearby; a fraction of the model's fixed sampling, independent of the scan density): the
+    object may be another, partly hidden segment."""
+    from mks_sim.localization.verify import surface_coverage
+    from mks_sim.localize import VISIBLE_FRACTION
+
+    if not order or not checks[order[0]].ok or len(objects) == 0:
+        return True
+    T = np.asarray(candidates[order[0]].matrix, dtype=np.float64)
+    cover = surface_coverage(model.surface_points(), T[None], cKDTree(objects), d)
+    return bool(cover[0] < VISIBLE_FRACTION)
+
+
 def _unexplained_segments(
     segments: list[Any],
     candidates: list[PoseHypothesis],
@@ -579,6 +604,7 @@ def _refine_near(
             icp_distance=max(4 * d, 0.1 * surface.size),
             symmetries=model.symmetries(),
             max_icp=1,
+            max_scene_points=1000,
             rng=rng,
         )
         out.extend(v.hypothesis for v in verified)
@@ -793,10 +819,9 @@ def _fit_fixed_sphere(
     objects: FloatArray, tree: cKDTree, c0: FloatArray, radius: float, d: float
 ) -> tuple[FloatArray, float, int] | None:
     """Centre of a sphere of known radius fitted robustly to the points near ``c0``'s shell."""
-    from scipy.optimize import least_squares
-
-    c = c0.copy()
+    c = np.asarray(c0, dtype=np.float64).copy()
     band = max(3.0 * d, 0.15 * radius)
+    f_scale = max(d / 3.0, 1e-4)
     for _ in range(4):
         idx = tree.query_ball_point(c, r=radius + band)
         pts = objects[idx]
@@ -806,13 +831,20 @@ def _fit_fixed_sphere(
         pts = pts[shell]
         if len(pts) < 20:
             return None
-
-        def resid(x: FloatArray, p: FloatArray = pts) -> FloatArray:
-            return np.linalg.norm(p - x, axis=1) - radius
-
-        res = least_squares(resid, c, loss="soft_l1", f_scale=max(d / 3.0, 1e-4))
-        step = float(np.linalg.norm(res.x - c))
-        c = res.x
+        start = c.copy()
+        # Gauss-Newton with soft-L1 (IRLS) weights on r_i = |p_i - c| - R
+        for _ in range(20):
+            diff = pts - c
+            dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-12)
+            u = diff / dist[:, None]
+            r = dist - radius
+            w = 1.0 / np.sqrt(1.0 + (r / f_scale) ** 2)
+            H = np.einsum("n,ni,nj->ij", w, u, u) + 1e-12 * np.eye(3)
+            delta = np.linalg.solve(H, np.einsum("n,ni->i", w * r, u))
+            c = c + delta
+            if float(np.linalg.norm(delta)) < 1e-7:
+                break
+        step = float(np.linalg.norm(c - start))
         band = max(1.5 * d, 0.5 * band)
         if step < 1e-5:
             break
