@@ -136,3 +136,21 @@ def test_cli_add_list_show(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
                  "--out", str(out)]) == 2  # fmt: skip
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not watertight" in err[0]
+
+
+def test_default_task_for_an_added_object(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from mks_sim.errors import NotFound
+    from mks_sim.sim.world import build_world
+    from mks_sim.tasks.spec import task_for_object
+
+    src = _export_mm(gen.wedge(), tmp_path / "w.stl")
+    add_object(src, "wedge", tmp_path / "m", units="mm")
+    monkeypatch.setenv("MKS_SIM_MODELS", str(tmp_path / "m"))
+    task = task_for_object("wedge")
+    assert task.object == "wedge" and task.matcher == "polyhedral"
+    assert task.scene.endswith("default_wedge.toml")
+    world = build_world(task.scene, seed=0)  # the wedge alone, dropped and settled
+    assert world.object_names == ("wedge",)
+    assert task_for_object("cube").scene == "scene2"  # a task file still wins
+    with pytest.raises(NotFound):
+        task_for_object("no_such_object")

@@ -19,7 +19,14 @@ logger = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--object", required=True, choices=("cube", "sphere", "part"))
+    parser.add_argument(
+        "--object", required=True, metavar="NAME",
+        help="a model-database object (cube, sphere, part, or one added with objects add)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--models", action="append", default=[], metavar="DIR",
+        help="extra model-database folder (repeatable; passed to workers as MKS_SIM_MODELS)",
+    )  # fmt: skip
     parser.add_argument("--episodes", type=int, default=1, help="episodes (seeds S, S+1, ...)")
     parser.add_argument("--seed", type=int, default=0, help="first seed")
     parser.add_argument("--workers", type=int, default=1, help="parallel processes")
@@ -83,6 +90,16 @@ def run(args: argparse.Namespace) -> int:
     from mks_sim.report import format_table, write_video
     from mks_sim.tasks.episode import run_episode
 
+    if args.models:  # workers (processes) inherit the environment
+        import os
+
+        from mks_sim.models.objects import MODELS_ENV, models_dirs
+
+        dirs = [str(d) for d in models_dirs(args.models)[1:]]
+        os.environ[MODELS_ENV] = os.pathsep.join(dirs)
+    from mks_sim.models.objects import load_object
+
+    load_object(args.object)  # NotFound lists the database's objects
     if args.episodes < 1:
         raise MksError(f"--episodes: expected >= 1, got {args.episodes}")
     if args.workers < 1:

@@ -18,6 +18,7 @@ Scenes shipped (paper section 4.1):
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -594,6 +595,27 @@ def default_scene(
         "object": [{"name": o, "pose": "drop"} for o in object_names],
     }
     return scene_from_doc(doc, "default scene", models=models)
+
+
+def default_scene_file(object_names: Sequence[str]) -> Path:
+    """A scene file of :func:`default_scene` (the objects alone, dropped), written once to a
+    cache folder, for code that names scenes by path (task files, worker processes)."""
+    import tempfile
+
+    if not object_names:
+        raise SpecError("default scene: expected at least one object name, got none")
+    folder = Path(tempfile.gettempdir()) / "mks_sim_scenes"
+    folder.mkdir(exist_ok=True)
+    name = "+".join(object_names)
+    path = folder / f"default_{name}.toml"
+    text = f'[scene]\nname = "{name}"\n' + "".join(
+        f'[[object]]\nname = "{o}"\npose = "drop"\n' for o in object_names
+    )
+    if not path.is_file() or path.read_text(encoding="utf-8") != text:
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(path)  # atomic: parallel workers never read half a file
+    return path
 
 
 _SCENES: dict[str, Callable[[], SceneSpec]] = {}

@@ -263,5 +263,40 @@ def get_task(name: str, folder: str | Path | None = None) -> TaskSpec:
 
 
 def task_for_object(obj: str, folder: str | Path | None = None) -> TaskSpec:
-    """The grasp task for ``obj`` (``cube``, ``sphere``, ``part``): task ``grasp_<obj>``."""
-    return get_task(f"grasp_{obj}", folder)
+    """The grasp task for ``obj``: task ``grasp_<obj>`` of the task files, else (any other
+    object of the model database, e.g. one added with ``mks-sim objects add``)
+    :func:`default_task`.
+
+    Raises:
+        NotFound: no such task and no such database object (the message lists the objects).
+    """
+    try:
+        return get_task(f"grasp_{obj}", folder)
+    except NotFound:
+        from mks_sim.models.objects import object_names
+
+        if obj not in object_names():
+            raise
+        return default_task(obj)
+
+
+def default_task(obj: str) -> TaskSpec:
+    """Grasp database object ``obj`` with the default action, in the shipped scene named like
+    it or holding it, else in the default scene (the object alone on the table, dropped from
+    a random orientation: :func:`mks_sim.sim.scenes.default_scene_file`). Extra model
+    folders come from ``MKS_SIM_MODELS`` (``--models`` sets it)."""
+    from mks_sim.models.objects import load_object
+    from mks_sim.sim.scenes import default_scene_file, scene_with_object
+
+    o = load_object(obj)
+    scene = scene_with_object(obj) or str(default_scene_file([obj]))
+    model = next(iter(o.models.values()), obj)
+    return TaskSpec(
+        name=f"grasp_{obj}",
+        scene=scene,
+        object=obj,
+        model=model,
+        matcher=o.kind,
+        action=GraspAction(),
+        description=f"grasp {obj} (default task from the model database)",
+    )
