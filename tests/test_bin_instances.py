@@ -117,13 +117,25 @@ def test_nothing_in_an_empty_scene_and_bad_input():
 
 
 @pytest.mark.slow
-def test_sim_bin_of_three_parts_localized():
-    from mks_sim.tasks.bin import run_localize_all
+def test_sim_bin_of_three_parts_localized(capsys):
+    import json
 
-    rec = run_localize_all(1, count=3)
+    from mks_sim.cli import main
+
+    argv = ["localize", "--scene", "bin", "--object", "part", "--all", "--count", "3"]
+    assert main([*argv, "--seed", "1", "--json"]) == 0
+    rec = json.loads(capsys.readouterr().out)
     assert rec["present"] == 3
     assert rec["found"] == 3 and rec["correct"] == 3 and rec["false_positives"] == 0, rec
     for inst in rec["instances"]:
         assert inst["error"]["position_mm"] < 5.0 and inst["error"]["rotation_deg"] < 5.0
         assert 0.0 < inst["visible_fraction"] <= 1.0
     assert rec["provenance"]["Range_Points"] == "primary"
+
+
+def test_cli_all_bad_input():
+    from mks_sim.cli import main
+
+    argv = ["localize", "--object", "part", "--all", "--seed", "1"]
+    assert main([*argv, "--count", "13"]) == 2
+    assert main([*argv, "--fail", "laser"]) == 2

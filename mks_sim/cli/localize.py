@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from mks_sim.cli._bin import add_all_arguments, run_all
 from mks_sim.errors import DeviceFailure, SensorFailure, SpecError
 from mks_sim.viz import NullRecorder, Recorder, add_rerun_argument, open_recorder
 
@@ -53,6 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     add_rerun_argument(parser)
+    add_all_arguments(parser)  # bin picking (issue 13)
 
 
 def add_models_argument(parser: argparse.ArgumentParser) -> None:
@@ -255,6 +257,8 @@ def format_text(rec: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.all:
+        return run_all(args)
     scene = check_arguments(args.scene, args.object, args.fail, args.models)
     with open_recorder(args.rerun, "mks_sim localize") as recorder:
         rec = run_trial(
