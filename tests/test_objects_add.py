@@ -138,6 +138,7 @@ def test_cli_add_list_show(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     assert len(err) == 1 and "not watertight" in err[0]
 
 
+@pytest.mark.slow
 def test_default_task_for_an_added_object(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from mks_sim.errors import NotFound
     from mks_sim.sim.world import build_world
