@@ -95,3 +95,39 @@ def test_consistency_check_rejects_floating_sunken_and_shifted_poses() -> None:
         make_transform(np.eye(3), [0.05, -0.01, 0.775]), pts, nrm, cloud, table, 0.003
     )
     assert not moved["ok"] and moved["below"] + moved["inside"] > 0.05 * moved["explained"]
+
+
+@pytest.mark.slow
+def test_one_localization_computes_normals_and_segmentation_once(monkeypatch) -> None:
+    """The sensors (Vertex_Detector, Sphere_Detector) and the matchers share the snapshot's
+    one representation: one normals pass and one segmentation per localization (there were
+    13 and 12)."""
+    import mks_sim.lowlevel.grouping as grouping_mod
+    import mks_sim.lowlevel.normals as normals_mod
+    import mks_sim.lowlevel.regions as regions_mod
+    from mks_sim.devices import make_devices
+    from mks_sim.sim.world import build_world
+
+    calls = {"normals": 0, "segment": 0}
+    real_normals, real_segment = normals_mod.estimate_normals, regions_mod.segment_surfaces
+
+    def count_normals(*a, **k):  # type: ignore[no-untyped-def]
+        calls["normals"] += 1
+        return real_normals(*a, **k)
+
+    def count_segment(*a, **k):  # type: ignore[no-untyped-def]
+        calls["segment"] += 1
+        return real_segment(*a, **k)
+
+    for mod in (normals_mod, regions_mod, grouping_mod):
+        monkeypatch.setattr(mod, "estimate_normals", count_normals)
+    for mod in (regions_mod, grouping_mod):
+        monkeypatch.setattr(mod, "segment_surfaces", count_segment)
+    world = build_world("scene2", seed=1)
+    with make_devices(world.model, world.data, np.random.default_rng(1)) as devices:
+        result = localize_object(world, "cube", devices, rng=np.random.default_rng(1))
+    assert result.found
+    assert {"Vertex_Detector", "Sphere_Detector"} <= set(result.provenance)
+    assert calls == {"normals": 1, "segment": 1}
+    timing = result.diagnostics["timing"]
+    assert {"sensing", "representation", "hypotheses", "verification", "total"} <= set(timing)

@@ -93,7 +93,7 @@ def spacing_and_noise(
     """Median nearest-neighbour distance and a noise estimate (median RMS distance of 12
     nearest neighbours from their fitted plane; the planar majority of a scene dominates)."""
     n = len(points)
-    probe = points if n <= 1500 else points[rng.choice(n, 1500, replace=False)]
+    probe = points if n <= 800 else points[rng.choice(n, 800, replace=False)]
     k = min(12, n)
     tree = cKDTree(points) if tree is None else tree
     d, idx = tree.query(probe, k=k)
@@ -144,8 +144,12 @@ class Representation:
     # ------------------------------------------------------------------ sampling
 
     @cached_property
+    def _raw_tree(self) -> cKDTree:
+        return cKDTree(self.raw)
+
+    @cached_property
     def _raw_stats(self) -> tuple[float, float]:
-        return spacing_and_noise(self.raw, self._rng)
+        return spacing_and_noise(self.raw, self._rng, self._raw_tree)
 
     @cached_property
     def voxel(self) -> float:
@@ -178,7 +182,7 @@ class Representation:
     @cached_property
     def tree(self) -> cKDTree:
         """k-d tree of :attr:`points`."""
-        return cKDTree(self.points)
+        return self._raw_tree if self.voxel == 0 else cKDTree(self.points)
 
     @cached_property
     def _stats(self) -> tuple[float, float]:
