@@ -8,11 +8,13 @@ export MUJOCO_GL ?= egl
 
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet -e .
+	# viz: the demo writes a Rerun recording (demo.rrd) beside its pictures.
+	$(PY) -m pip install --quiet -e ".[viz]"
 	touch $@
 
 $(VENV)/.installed-test: $(VENV)/.installed
-	$(PY) -m pip install --quiet -e ".[test]"
+	# Every extra the suite tests: recordings (viz), Minari datasets (record), Ray (ray).
+	$(PY) -m pip install --quiet -e ".[test,viz,record,ray]"
 	touch $@
 
 demo: $(VENV)/.installed
@@ -26,6 +28,7 @@ test: $(VENV)/.installed-test
 bench: $(VENV)/.installed-test
 	$(PY) -m pip install --quiet -e ".[bench]"
 	$(PY) benchmarks/spg.py
+	$(PY) benchmarks/collect_results.py
 
 clean:
 	rm -rf $(VENV) build dist *.egg-info .pytest_cache .mypy_cache .ruff_cache
