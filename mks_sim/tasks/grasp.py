@@ -156,7 +156,7 @@ PAD_TOP_ABOVE_CENTRE_M = 0.007
 # does not pass for one on the face.
 PAD_TOP_MARGIN_M = 0.002
 # Half the pad's width across the closing axis that must lie on the face (pads are ~13 mm).
-PAD_HALF_WIDTH_M = 0.005
+PAD_HALF_WIDTH_M = 0.0065
 # Where along the closing direction (m, + = further in) a pad may meet the surface: a curved
 # or leaning face is met before or after the line of the contacts.
 PAD_DEPTHS_M = np.array([-0.006, -0.003, 0.0, 0.003, 0.006, 0.009])
