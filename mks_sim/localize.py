@@ -36,13 +36,14 @@ from scipy.spatial import ConvexHull, cKDTree
 from mks_sim.errors import DataError, MksError, NotFound
 from mks_sim.geometry.transforms import cube_rotations, make_transform
 from mks_sim.io.units import check_scale
+from mks_sim.localization.representation import spacing_and_noise, voxel_average
+from mks_sim.localization.verify import find_table
 from mks_sim.lowlevel.grouping import (
     PlanarRegion,
     Plane,
     Segmentation,
     Vertexes,
     build_graph,
-    fit_plane_ransac,
     plane_vertexes,
     segment_surfaces,
 )
@@ -644,32 +645,9 @@ class Localization:
         return self.hypotheses[0] if self.hypotheses else None
 
 
-def voxel_average(points: FloatArray, voxel: float) -> FloatArray:
-    """(M, 3) centroids of the points in each occupied cube of edge ``voxel``."""
-    keys = np.floor(points / voxel).astype(np.int64)
-    keys -= keys.min(axis=0)
-    span = keys.max(axis=0) + 1
-    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]  # one int64 per cell
-    _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
-    out = np.zeros((len(counts), 3))
-    for d in range(3):
-        out[:, d] = np.bincount(inverse, weights=points[:, d]) / counts
-    return out
-
-
 def _spacing_and_noise(points: FloatArray, rng: np.random.Generator) -> tuple[float, float]:
-    """Median nearest-neighbour distance and a noise estimate (median RMS distance of 12
-    nearest neighbours from their fitted plane; the planar majority of a scene dominates)."""
-    n = len(points)
-    probe = points if n <= 1500 else points[rng.choice(n, 1500, replace=False)]
-    k = min(12, n)
-    d, idx = cKDTree(points).query(probe, k=k)
-    spacing = float(np.median(d[:, 1])) if k > 1 else 0.0
-    nb = points[idx]  # (P, k, 3)
-    c = nb - nb.mean(axis=1, keepdims=True)
-    lam0 = np.linalg.eigvalsh(np.einsum("pki,pkj->pij", c, c) / k)[:, 0]
-    return spacing, float(np.median(np.sqrt(np.clip(lam0, 0.0, None))))
+    """Median nearest-neighbour distance and noise sigma (``representation.spacing_and_noise``)."""
+    return spacing_and_noise(points, rng)
 
 
 def _find_table(
@@ -678,42 +656,11 @@ def _find_table(
     noise: float,
     viewpoint: FloatArray | None,
     rng: np.random.Generator,
-    min_fraction: float = 0.2,
 ) -> tuple[Plane | None, NDArray[np.bool_]]:
-    """The dominant plane if it looks like a support: large, with the rest on one side of it
-    and inside its footprint (a face of a convex object fails the footprint test)."""
-    none = np.zeros(len(points), dtype=bool)
-    if len(points) < 50:
-        return None, none
-    threshold = max(spacing, 3.0 * noise, 1e-12)
-    plane, _ = fit_plane_ransac(points, threshold, rng, iterations=150)
-    d = plane.distance(points)
-    # The band of the table: 4 robust sigmas of the residuals near the plane.
-    near = np.abs(d) <= 3.0 * threshold
-    band = max(threshold, 4.0 * 1.4826 * float(np.median(np.abs(d[near]))))
-    inl = np.abs(d) <= band
-    off = np.abs(d) > 2.0 * band  # clearly off the plane: objects (and outliers)
-    if inl.mean() < min_fraction or off.sum() < 10:
-        return None, none
-    if np.mean(d[off] > 0) < 0.5:
-        plane, d = plane.flipped(), -d
-    if np.mean(d[off] > 0) < 0.95:
-        return None, none
-    if viewpoint is not None and plane.distance(viewpoint[None])[0] < 0:
-        return None, none
-    # Footprint: the objects, projected into the plane, well inside the inliers' extent.
-    n = plane.normal
-    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    w = np.cross(n, u)
-    uv_in = points[inl] @ np.column_stack([u, w])
-    uv_off = points[off] @ np.column_stack([u, w])
-    lo, hi = uv_in.min(axis=0), uv_in.max(axis=0)
-    margin = 0.05 * (hi - lo) + 2 * spacing
-    inside = np.all((uv_off > lo + margin) & (uv_off < hi - margin), axis=1)
-    if inside.mean() < 0.9:
-        return None, none
-    return plane, inl
+    """The dominant plane if it looks like a support, and the mask of its band (the one table
+    finder, :func:`mks_sim.localization.verify.find_table`)."""
+    plane, _, band = find_table(points, rng, spacing=spacing, noise=noise, viewpoint=viewpoint)
+    return plane, band
 
 
 def _as_localizable(model: Any, scale: float) -> LocalizableModel:

@@ -88,12 +88,16 @@ def voxel_average(points: FloatArray, voxel: float) -> FloatArray:
 
 
 def spacing_and_noise(
-    points: FloatArray, rng: np.random.Generator, tree: cKDTree | None = None
+    points: FloatArray,
+    rng: np.random.Generator,
+    tree: cKDTree | None = None,
+    probes: int = 1500,
 ) -> tuple[float, float]:
     """Median nearest-neighbour distance and a noise estimate (median RMS distance of 12
-    nearest neighbours from their fitted plane; the planar majority of a scene dominates)."""
+    nearest neighbours from their fitted plane; the planar majority of a scene dominates),
+    from ``probes`` random points."""
     n = len(points)
-    probe = points if n <= 800 else points[rng.choice(n, 800, replace=False)]
+    probe = points if n <= probes else points[rng.choice(n, probes, replace=False)]
     k = min(12, n)
     tree = cKDTree(points) if tree is None else tree
     d, idx = tree.query(probe, k=k)
@@ -149,7 +153,7 @@ class Representation:
 
     @cached_property
     def _raw_stats(self) -> tuple[float, float]:
-        return spacing_and_noise(self.raw, self._rng, self._raw_tree)
+        return spacing_and_noise(self.raw, self._rng, self._raw_tree, probes=800)
 
     @cached_property
     def voxel(self) -> float:
@@ -188,7 +192,7 @@ class Representation:
     def _stats(self) -> tuple[float, float]:
         if self.voxel == 0:
             return self._raw_stats
-        return spacing_and_noise(self.points, self._rng, self.tree)
+        return spacing_and_noise(self.points, self._rng, self.tree, probes=800)
 
     @property
     def spacing(self) -> float:
