@@ -178,3 +178,42 @@ def test_database_entry_with_mesh_file_and_table_cache(tmp_path: Path) -> None:
     again = ModelDatabase.from_dir(tmp_path).get("ring")  # from the cached tables
     np.testing.assert_array_equal(first.signatures, again.signatures)
     assert again.symmetries() is not None
+
+
+def test_pair_consistency_and_reused_keypoints_match_the_direct_computation() -> None:
+    # The (C x C) consistency test is computed from keypoint distances gathered per pairing
+    # and a float32 model table: it must equal the direct (C, C, 3) float64 formula, and a
+    # detect given the keypoints of an earlier call must return that call's hypotheses.
+    from mks_sim.models import freeform as ff
+
+    model = _model("part")
+    pts, nrm, _ = _scene(industrial_part_mesh(), 5)
+    seen: dict[str, np.ndarray] = {}
+    real = ff._triangles
+
+    def spy(cons, cap, rng):
+        seen["cons"] = cons.copy()
+        return real(cons, cap, rng)
+
+    first = model.detect(pts, nrm)
+    assert first.keypoints is not None
+    kp_idx, kp_sig, _ = first.keypoints
+    cfg = model.config
+    k = min(len(model._sig_flat), cfg.matches_per_keypoint * 4)
+    _, j = model._sig_tree.query(kp_sig / model._sig_scale, k=k)
+    pair_s, pair_m = ff._first_distinct(model._sig_owner[j.reshape(len(kp_idx), -1)], 8)
+    s_pos = pts[kp_idx[pair_s]]
+    m_pos = model.model_points[pair_m]
+    ds = np.linalg.norm(s_pos[:, None] - s_pos[None], axis=-1)
+    dm = np.linalg.norm(m_pos[:, None] - m_pos[None], axis=-1)
+    want = (np.abs(ds - dm) <= cfg.distance_tolerance) & (ds >= cfg.min_side)
+    try:
+        ff._triangles = spy
+        again = model.detect(pts, nrm, keypoints=first.keypoints)
+    finally:
+        ff._triangles = real
+    borderline = np.abs(np.abs(ds - dm) - cfg.distance_tolerance) < 1e-6
+    assert np.array_equal(seen["cons"] & ~borderline, want & ~borderline)
+    assert [h.votes for h in again.hypotheses] == [h.votes for h in first.hypotheses]
+    for a, b in zip(again.hypotheses, first.hypotheses, strict=True):
+        np.testing.assert_allclose(a.matrix, b.matrix)
