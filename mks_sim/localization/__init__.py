@@ -8,6 +8,11 @@ Modules, one stage each:
   :func:`representation_of` (the one representation of a stream's points).
 - :mod:`~mks_sim.localization.verify` — the one table finder, batch scoring of candidate
   poses, the one scene-consistency check, ranking.
+- :mod:`~mks_sim.localization.model` — model kinds (``polyhedral``, ``freeform``,
+  ``sphere``; ``auto`` from a mesh), loading a model of a kind.
+- :mod:`~mks_sim.localization.hypotheses` — support-face and sphere-centre hypotheses.
+- :mod:`~mks_sim.localization.pipeline` — object segments and polyhedral candidates over a
+  representation (the stages in order).
 
 The simulator-free pipeline is :func:`mks_sim.localize.localize_cloud`; the workstation flow
 is :func:`mks_sim.workstation.localize_object`.
