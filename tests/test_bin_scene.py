@@ -10,7 +10,7 @@ from mks_sim.sim import truth
 from mks_sim.sim.scenes import scene_from_doc
 from mks_sim.tasks.bin import bin_world, instance_bodies
 
-INNER_HALF = (0.14, 0.11)  # worlds/bin.toml: the walls' inner faces
+INNER_HALF = (0.17, 0.13)  # worlds/bin.toml: the walls' inner faces
 WALL_HEIGHT = 0.04
 
 

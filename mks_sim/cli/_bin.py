@@ -74,3 +74,65 @@ def run_all(args: argparse.Namespace) -> int:
     else:
         print(format_all_text(rec))
     return 0 if rec["found"] else 1
+
+
+TASKS = ("clear_bin",)
+
+
+def add_task_argument(parser: argparse.ArgumentParser) -> None:
+    """``--task clear_bin`` (and ``--count``) for ``mks-sim grasp``."""
+    parser.add_argument(
+        "--task", choices=TASKS, default=None,
+        help="clear_bin: localize every part in the bin scene, pick them one by one into the "
+        "output box (--seed, --count, --fail, --json); no --object needed",
+    )  # fmt: skip
+    parser.add_argument(
+        "--count", type=int, default=None, metavar="N",
+        help="--task clear_bin: parts dropped into the bin (1..12; default 6)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--budget", type=int, default=None, metavar="N",
+        help="--task clear_bin: picks at most (default 2 x parts + 2)",
+    )  # fmt: skip
+
+
+def run_clear_bin_command(args: argparse.Namespace) -> int:
+    """``mks-sim grasp --task clear_bin``: exit 0 when the bin was cleared, 1 otherwise."""
+    from mks_sim.devices import DEVICE_NAMES
+    from mks_sim.tasks.bin import run_clear_bin
+
+    unknown = [d for d in args.fail if d not in DEVICE_NAMES]
+    if unknown:
+        raise SpecError(
+            f"--fail: unknown device(s) {unknown}; valid device names: {list(DEVICE_NAMES)}"
+        )
+    if args.budget is not None and args.budget < 1:
+        raise SpecError(f"--budget: expected >= 1, got {args.budget}")
+    rec = run_clear_bin(
+        int(args.seed),
+        object_name=args.object,
+        count=args.count,
+        fail=tuple(args.fail),
+        budget=args.budget,
+    )
+    if args.json:
+        print(json.dumps(rec, allow_nan=False))
+    else:
+        print(format_clear_text(rec))
+    return 0 if rec["picked"] == rec["present"] else 1
+
+
+def format_clear_text(rec: dict[str, Any]) -> str:
+    """Human-readable report of one clear_bin run."""
+    lines = [
+        f"clear_bin (seed {rec['seed']}): picked {rec['picked']} of {rec['present']} "
+        f"({100 * rec['cleared_fraction']:.0f} %) in {rec['time_s']:.1f} s; stopped: "
+        f"{rec['stopped']}"
+    ]
+    for k, p in enumerate(rec["picks"]):
+        what = "ok" if p["success"] else f"FAILED: {p['failure']}"
+        lines.append(
+            f"  pick {k + 1}: instance {p['instance']} (score {p['score']:.2f}) {what}; "
+            f"{p['time_s']:.1f} s ({p['perception_s']:.1f} s perception, {p['views']} view)"
+        )
+    return "\n".join(lines)

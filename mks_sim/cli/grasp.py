@@ -9,7 +9,8 @@ import sys
 from collections.abc import Sequence
 
 from mks_sim.cli import output_file
-from mks_sim.errors import MksError
+from mks_sim.cli._bin import add_task_argument, run_clear_bin_command
+from mks_sim.errors import MksError, SpecError
 from mks_sim.tasks.backends import BACKENDS, EpisodeJob, check_backend
 from mks_sim.viz import add_rerun_argument, open_recorder
 
@@ -20,9 +21,11 @@ logger = logging.getLogger(__name__)
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--object", required=True, metavar="NAME",
-        help="a model-database object (cube, sphere, part, or one added with objects add)",
+        "--object", default=None, metavar="NAME",
+        help="a model-database object (cube, sphere, part, or one added with objects add); "
+        "required unless --task",
     )  # fmt: skip
+    add_task_argument(parser)  # bin picking (issue 13)
     parser.add_argument(
         "--models", action="append", default=[], metavar="DIR",
         help="extra model-database folder (repeatable; passed to workers as MKS_SIM_MODELS)",
@@ -90,6 +93,10 @@ def run(args: argparse.Namespace) -> int:
     from mks_sim.report import format_table, write_video
     from mks_sim.tasks.episode import run_episode
 
+    if args.task is not None:
+        return run_clear_bin_command(args)
+    if args.object is None:
+        raise SpecError("grasp: --object NAME is required (or --task clear_bin)")
     if args.models:  # workers (processes) inherit the environment
         import os
 

@@ -370,13 +370,16 @@ class SensedInstances:
     Attributes:
         instances: the :class:`Instances`.
         points: (N, 3) the sensed points (world frame) the instances were found in (cropped
-            to the region of interest): obstacles for a grasp planner.
+            to the region of interest).
+        scene_points: (M, 3) every sensed point (not cropped): obstacles for a grasp
+            planner (walls and neighbours included).
         provenance: logical sensor -> the way that served it.
         timing: seconds (``sensing``, ``localization``, ``total``).
     """
 
     instances: Instances
     points: FloatArray = field(repr=False)
+    scene_points: FloatArray = field(repr=False)
     provenance: dict[str, str]
     timing: dict[str, float]
 
@@ -437,6 +440,7 @@ def localize_instances(
     snap = graph.snapshot(devices)
     pts = np.asarray(snap.get(POINTS_SENSOR).data, dtype=np.float64)[:, :3]
     pts = pts[np.all(np.isfinite(pts), axis=1)]
+    scene = pts
     if roi is not None:
         lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in roi)
         pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
@@ -449,6 +453,7 @@ def localize_instances(
     return SensedInstances(
         result,
         pts,
+        scene,
         dict(snap.provenance),
         {"sensing": t_sense, "localization": total - t_sense, "total": total},
     )

@@ -8,8 +8,10 @@ object; nothing here knows which object is in the bin.
 
 from __future__ import annotations
 
+import time
 import tomllib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -258,3 +260,315 @@ def run_localize_all(
         "timing_s": {k: round(v, 4) for k, v in sensed.timing.items()},
         "failed_devices": list(fail),
     }
+
+
+# --------------------------------------------------------------------------- clear_bin
+
+#: Output box beside the bin (worlds/bin.toml: inner 140 x 140 mm centred here): parts are
+#: released this high above the table over its centre.
+OUTPUT_BOX_XY = (-0.264, 0.22)
+OUTPUT_BOX_HALF_M = 0.07
+RELEASE_HEIGHT_M = 0.14
+#: A failed pick within this distance of an instance's estimate puts that instance last.
+FAILED_NEAR_M = 0.015
+#: Fingers closed beyond this (rad; 1.35 = fully closed) hold nothing: the narrowest grasp the
+#: synthesis makes (MIN_WIDTH_M = 2 cm) closes the pads at ~1.2 rad (grasp.PAD_APERTURE_M).
+EMPTY_HAND_Q = 1.25
+CLEARANCE_ABOVE_M = 0.16  # travel height of the pinch point above the table between bin and box
+
+
+@dataclass(frozen=True)
+class Pick:
+    """One pick of :func:`clear_bin`.
+
+    Attributes:
+        instance: index of the instance picked, in the score order of that sensing.
+        success: the part ended in the output box (ground truth, evaluation only).
+        believed: what the robot concluded (two-sided touch while lifting).
+        failure: why it failed ("" on success): ``no grasp``, ``unreachable``,
+            ``no two-sided contact``, ``closed on nothing``, ``slipped``, ``not in the box``.
+        time_s: wall-clock seconds: sensing + localization + planning + motion.
+        perception_s: of which sensing + localization.
+        views: sensing views used for the pick.
+        score: the picked instance's localization score.
+        body: the body it was (evaluation: the true instance nearest the estimate).
+    """
+
+    instance: int
+    success: bool
+    believed: bool
+    failure: str
+    time_s: float
+    perception_s: float
+    views: int
+    score: float
+    body: str | None
+
+    def to_json(self) -> dict[str, Any]:
+        """The CLI's record of the pick."""
+        return {
+            "instance": self.instance,
+            "success": self.success,
+            "believed": self.believed,
+            "failure": self.failure,
+            "time_s": round(self.time_s, 3),
+            "perception_s": round(self.perception_s, 3),
+            "views": self.views,
+            "score": round(self.score, 4),
+            "body": self.body,
+        }
+
+
+def in_output_box(world: World, body: str) -> bool:
+    """The body's origin is inside the output box, below its rim (evaluation only)."""
+    from mks_sim.sim import truth
+
+    p = truth.object_to_world(world, body)[:3, 3]
+    return bool(
+        abs(p[0] - OUTPUT_BOX_XY[0]) < OUTPUT_BOX_HALF_M
+        and abs(p[1] - OUTPUT_BOX_XY[1]) < OUTPUT_BOX_HALF_M
+        and p[2] < world.scene.support_z + 0.08
+    )
+
+
+def _nearest_body(world: World, bodies: Sequence[str], T: np.ndarray) -> str | None:
+    """The true instance nearest the estimate ``T`` (evaluation only)."""
+    from mks_sim.sim import truth
+
+    if not bodies:
+        return None
+    return min(
+        bodies,
+        key=lambda b: float(np.linalg.norm(truth.object_to_world(world, b)[:3, 3] - T[:3, 3])),
+    )
+
+
+PlanPerturbation = Callable[[int, Any], Any]
+
+
+def clear_bin(
+    world: World,
+    devices: Any,
+    *,
+    object_name: str | None = None,
+    rng: np.random.Generator | None = None,
+    budget: int | None = None,
+    perturb: PlanPerturbation | None = None,
+) -> dict[str, Any]:
+    """Clear the bin: sense, localize every instance, pick the best-scored one that has a
+    collision-free reachable grasp, lift it out, drop it in the output box, repeat.
+
+    Stops when nothing is found, the bin's instances are all picked (the robot does not
+    know: it stops when sensing finds nothing), or ``budget`` picks were tried. A failed pick
+    is recorded with its reason and the loop goes on (the instance it failed on is tried
+    last next time).
+
+    Args:
+        world: the bin world (:func:`bin_world`).
+        devices: the devices (``make_devices``; failed ones are served by alternates).
+        object_name: the database object in the bin (default the scene's).
+        rng: grasp sampling and localization (default seeded 0).
+        budget: picks at most (default 2 x the instances present + 2).
+        perturb: ``(pick index, GraspPlan) -> GraspPlan`` applied before execution (tests:
+            a grasp made to miss).
+
+    Returns:
+        ``{"present", "picked", "cleared_fraction", "picks": [Pick.to_json()], "time_s",
+        "stopped"}`` (``picked``, ``present``, ``success`` are evaluation from ground truth).
+    """
+    from mks_sim.errors import MksError
+    from mks_sim.localization.instances import localize_instances
+    from mks_sim.models.objects import load_object
+    from mks_sim.sim import names
+    from mks_sim.tasks.controller import ArmHandController, RobotNames
+    from mks_sim.tasks.episode import TOUCH_THRESHOLD_N, make_touch_reader
+    from mks_sim.tasks.grasp import synthesize_grasps
+    from mks_sim.tasks.spec import task_for_object
+
+    t_start = time.perf_counter()
+    rng = np.random.default_rng(0) if rng is None else rng
+    name = object_name or next(iter(world.scene.models.values()))
+    obj = load_object(name)
+    action = task_for_object(name).action
+    bodies = [b for b, m in world.scene.models.items() if m == name]
+    budget = 2 * len(bodies) + 2 if budget is None else budget
+    ctl = ArmHandController(
+        world.physics, RobotNames.from_model(world.model), make_touch_reader(devices)
+    )
+    home_pos, home_yaw = ctl.pinch_pos(), ctl.pinch_yaw()
+    table_z = names.TABLE_TOP_Z
+    roi = bin_roi(world)
+    failed_at: list[np.ndarray] = []
+    picks: list[Pick] = []
+    stopped = "budget spent"
+    radius = float(np.max(np.linalg.norm(obj.mesh.vertices, axis=1)))
+
+    def retreat() -> None:
+        ctl.open(15)
+        up = ctl.pinch_pos()
+        up[2] = max(up[2], table_z + CLEARANCE_ABOVE_M)
+        ctl.move_to(up, ctl.pinch_yaw(), spacing_m=0.02)
+        ctl.move_to(home_pos, home_yaw, spacing_m=0.03)
+
+    while len(picks) < budget:
+        t0 = time.perf_counter()
+        try:
+            sensed = localize_instances(devices, name, roi=roi, rng=rng)
+        except MksError as exc:
+            stopped = f"sensing failed: {exc}"
+            break
+        perception = time.perf_counter() - t0
+        found = list(sensed.instances.instances)
+        if not found:
+            stopped = "nothing found"
+            break
+        # instances a pick failed on go last (the failure may repeat)
+        order = sorted(
+            range(len(found)),
+            key=lambda i: any(
+                np.linalg.norm(found[i].matrix[:3, 3] - f) < FAILED_NEAR_M for f in failed_at
+            ),
+        )
+        chosen: tuple[int, Any] | None = None
+        for i in order:
+            T = found[i].matrix
+            P = sensed.scene_points
+            # the instance's own points are no obstacle: those near its estimate that no
+            # other instance claimed (walls and neighbours are)
+            own = (np.linalg.norm(P - T[:3, 3], axis=1) < radius + 0.005) & ~_claimed_mask(
+                sensed, i
+            )
+            obstacles = P[~own & (P[:, 2] > table_z + 0.004)]
+            cands = synthesize_grasps(
+                obj, T, table_z=table_z, obstacles=obstacles, rng=rng,
+                preferred_yaw=ctl.pinch_yaw(),
+            )  # fmt: skip
+            if cands:
+                chosen = (i, cands)
+                break
+        if chosen is None:
+            picks.append(
+                Pick(
+                    -1, False, False, "no grasp", time.perf_counter() - t0, perception, 1, 0.0, None
+                )
+            )
+            stopped = "no collision-free grasp for any instance found"
+            break
+        i, cands = chosen
+        T = found[i].matrix
+        body = _nearest_body(world, bodies, T)  # evaluation only (the report)
+        ok, failure = _pick(ctl, cands, action, len(picks), perturb, table_z, TOUCH_THRESHOLD_N)
+        if ok:
+            box = np.array([*OUTPUT_BOX_XY, table_z + RELEASE_HEIGHT_M])
+            ctl.move_to(box, ctl.pinch_yaw(), spacing_m=0.03)
+        retreat()
+        world.step(100)
+        success = body is not None and in_output_box(world, body)
+        if ok and not success:
+            failure = "not in the box"
+        if not success:
+            failed_at.append(T[:3, 3].copy())
+        picks.append(
+            Pick(
+                i,
+                success,
+                ok,
+                "" if success else failure,
+                time.perf_counter() - t0,
+                perception,
+                1,
+                float(found[i].score),
+                body,
+            )  # fmt: skip
+        )
+    picked = sum(in_output_box(world, b) for b in bodies)
+    return {
+        "present": len(bodies),
+        "picked": picked,
+        "cleared_fraction": round(picked / max(len(bodies), 1), 4),
+        "picks": [p.to_json() for p in picks],
+        "time_s": round(time.perf_counter() - t_start, 3),
+        "stopped": stopped,
+    }
+
+
+def _claimed_mask(sensed: Any, i: int) -> np.ndarray:
+    """(M,) over ``sensed.scene_points``: points some OTHER instance claimed (obstacles even
+    when they are near instance ``i``)."""
+    from scipy.spatial import cKDTree
+
+    insts = sensed.instances.instances
+    claimed = [sensed.points[inst.points] for j, inst in enumerate(insts) if j != i]
+    mask = np.zeros(len(sensed.scene_points), dtype=bool)
+    if not claimed:
+        return mask
+    tree = cKDTree(np.concatenate(claimed))
+    d = tree.query(sensed.scene_points, distance_upper_bound=1e-9)[0]
+    mask[np.isfinite(d)] = True
+    return mask
+
+
+def _pick(
+    ctl: Any,
+    cands: Sequence[Any],
+    action: Any,
+    index: int,
+    perturb: PlanPerturbation | None,
+    table_z: float,
+    touch_n: float,
+) -> tuple[bool, str]:
+    """Reach, close and lift with the first reachable candidate. Returns (believed held,
+    failure reason)."""
+    plan = None
+    for cand in cands[:4]:
+        p = cand.plan(action)
+        if perturb is not None:
+            p = perturb(index, p)
+        ctl.preshape(p.preshape_q, 10)
+        if not ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.03):
+            continue
+        if ctl.move_to(np.asarray(p.grasp_point_world), p.yaw_rad, spacing_m=0.01):
+            plan = p
+            break
+        ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.02)
+    if plan is None:
+        return False, "unreachable"
+    closed = ctl.close(threshold=touch_n, yaw=plan.yaw_rad)
+    a, b = closed.sides(touch_n)
+    if not (a and b):
+        return False, "no two-sided contact"
+    if float(np.min(closed.finger_qpos)) > EMPTY_HAND_Q:
+        # the pads touch each other: the hand closed on nothing
+        return False, "closed on nothing"
+    up = np.asarray(plan.grasp_point_world, dtype=float).copy()
+    up[2] = table_z + CLEARANCE_ABOVE_M
+    ctl.move_to(up, plan.yaw_rad, spacing_m=0.01)
+    t = np.nan_to_num(ctl.touch(), nan=-1.0)
+    if not (t[0] > touch_n and max(t[1], t[2]) > touch_n):
+        return False, "slipped"
+    return True, ""
+
+
+def run_clear_bin(
+    seed: int,
+    *,
+    object_name: str | None = None,
+    count: int | None = None,
+    fail: Sequence[str] = (),
+    budget: int | None = None,
+    perturb: PlanPerturbation | None = None,
+    scene: str | Path = BIN_SCENE,
+) -> dict[str, Any]:
+    """Build the bin from ``seed`` and clear it (:func:`clear_bin`): the record of
+    ``mks-sim grasp --task clear_bin`` (plus ``seed``, ``object``, ``failed_devices``)."""
+    from mks_sim.devices import DeviceFaults, make_devices
+
+    world = bin_world(seed, count=count, object=object_name, scene=scene)
+    name = object_name or next(iter(world.scene.models.values()))
+    faults = {dev: DeviceFaults(failed=True) for dev in fail}
+    with make_devices(world.model, world.data, np.random.default_rng(seed), faults) as devices:
+        rec = clear_bin(
+            world, devices, object_name=name, rng=np.random.default_rng(seed), budget=budget,
+            perturb=perturb,
+        )  # fmt: skip
+    return {"seed": seed, "object": name, "failed_devices": list(fail), **rec}

@@ -1,0 +1,27 @@
+"""The clear_bin task (issue 13): pick every part out of the bin into the output box."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from mks_sim.tasks.bin import run_clear_bin
+
+
+def _miss_first(index, plan):
+    """The first pick's grasp is made to miss: it closes 6 cm above where it should."""
+    if index != 0:
+        return plan
+    x, y, z = plan.grasp_point_world
+    return dataclasses.replace(plan, grasp_point_world=(x, y, z + 0.06))
+
+
+@pytest.mark.slow
+def test_a_failed_pick_is_reported_and_the_loop_goes_on():
+    rec = run_clear_bin(0, count=1, budget=2, perturb=_miss_first)
+    first, *rest = rec["picks"]
+    assert first["success"] is False and first["failure"] in ("no two-sided contact", "closed on nothing")
+    assert rest, rec  # the loop went on after the failure
+    assert rest[0]["success"] is True, rec
+    assert rec["picked"] == 1 and rec["cleared_fraction"] == 1.0
