@@ -131,3 +131,19 @@ def test_one_localization_computes_normals_and_segmentation_once(monkeypatch) ->
     assert calls == {"normals": 1, "segment": 1}
     timing = result.diagnostics["timing"]
     assert {"sensing", "representation", "hypotheses", "verification", "total"} <= set(timing)
+
+
+def test_cli_timing_s_reports_the_engine_stages() -> None:
+    from types import SimpleNamespace
+
+    from mks_sim.cli.localize import TIMING_STAGES, _timing
+
+    result = SimpleNamespace(
+        time_s=0.5,
+        diagnostics={"timing": {"sensing": 0.1, "representation": 0.2, "hypotheses": 0.05}},
+    )
+    out = _timing(result)
+    assert tuple(out) == TIMING_STAGES
+    assert {"sensing", "representation", "hypotheses", "verification", "total"} <= set(out)
+    assert out["total"] == 0.5 and out["verification"] == 0.0 and out["sensing"] == 0.1
+    assert _timing(None) == {}
