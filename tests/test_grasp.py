@@ -71,7 +71,7 @@ def test_unknown_object_and_device() -> None:
     from mks_sim.errors import SpecError as SE
     from mks_sim.tasks.episode import run_episode
 
-    with pytest.raises(NotFound, match=r"unknown object 'pyramid'"):
+    with pytest.raises(NotFound, match=r"pyramid.*not found; known"):
         run_episode("pyramid", 0, localize_fn=_truth_localize)
     with pytest.raises(SE, match=r"unknown device 'laser'"):
         run_episode("cube", 0, faults=("laser",), localize_fn=_truth_localize)
