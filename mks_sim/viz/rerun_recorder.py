@@ -8,8 +8,15 @@ and their meaning: ``docs/visualization.md``. Timelines: ``sim_time`` (simulated
 from __future__ import annotations
 
 import logging
+import os
+import shutil
+import socket
+import sys
+import time
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 import cv2
 import numpy as np
@@ -54,6 +61,9 @@ _HYPOTHESIS = (150, 150, 150)
 CLOUD_PERIOD_S = 1.0
 # Self-hit rays have no range (the device reports none): drawn this long from the mount.
 _SELF_HIT_RAY_M = 0.1
+SPAWN_PORT = 9876  # Rerun's default viewer port
+VIEWER_WAIT_S = 8.0  # a spawned viewer binds its port within ~1-3 s
+VIEWER_FLUSH_S = 30.0
 _LEVELS = {"INFO": rr.TextLogLevel.INFO, "WARN": rr.TextLogLevel.WARN,
            "ERROR": rr.TextLogLevel.ERROR}  # fmt: skip
 
@@ -75,11 +85,25 @@ class RerunRecorder:
             if spec.mode == "save":
                 self.rec.save(str(spec.target))
             elif spec.mode == "spawn":
-                self.rec.spawn()
+                _viewer_on_path()
+                self.rec.spawn(port=SPAWN_PORT)
             else:
                 self.rec.connect_grpc(str(spec.target))
         except Exception as exc:  # rerun raises its own (RuntimeError, OSError, ...) types
-            raise MksError(f"--rerun {spec.mode}: cannot open the recording: {exc}") from exc
+            msg = " ".join(str(exc).split())  # one line
+            raise MksError(f"--rerun {spec.mode}: cannot open the recording: {msg}") from exc
+        # A viewer that is not there would make the run hang at the end, flushing to nobody:
+        # fail now, before any work.
+        if spec.mode != "save":
+            url = f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy" if spec.mode == "spawn" else spec.target
+            if not _listening(str(url), VIEWER_WAIT_S):
+                self.rec.disconnect()
+                why = "the viewer did not start (no display?)" if spec.mode == "spawn" else (
+                    "no Rerun viewer listens there")  # fmt: skip
+                raise MksError(
+                    f"--rerun {spec.mode}: {why} at {url}; record to a file instead with "
+                    "--rerun save:PATH.rrd and open it with `rerun PATH.rrd`"
+                )
         self._snapshots: list[Any] = []
         self._robot: list[Any] = []
         self._robot_joints: list[str] = []
@@ -553,7 +577,11 @@ class RerunRecorder:
         self.rec.log("log", rr.TextLog(text, level=_LEVELS.get(level, rr.TextLogLevel.INFO)))
 
     def close(self) -> None:
-        self.rec.flush()
+        try:
+            # A file is written whole; a viewer that went away is given up after a while.
+            self.rec.flush(timeout_sec=1e9 if self.spec.mode == "save" else VIEWER_FLUSH_S)
+        except Exception as exc:  # rerun's own error types
+            log.warning("--rerun %s: recording not fully delivered: %s", self.spec.mode, exc)
         if self.spec.mode == "save":
             self.rec.disconnect()
 
@@ -562,6 +590,31 @@ class RerunRecorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _listening(url: str, wait_s: float) -> bool:
+    """True when something accepts TCP connections at the URL's host and port within
+    ``wait_s`` seconds."""
+    parts = urlsplit(url)
+    host, port = parts.hostname or "127.0.0.1", parts.port or SPAWN_PORT
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            with socket.create_connection((host, port), timeout=1.0):
+                return True
+        except OSError:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.2)
+
+
+def _viewer_on_path() -> None:
+    """Put the ``rerun`` viewer installed beside this Python on PATH when PATH has none: the
+    SDK looks it up by name, and ``.venv/bin`` is not on PATH unless the venv is activated."""
+    if shutil.which("rerun") is None:
+        here = Path(sys.executable).parent
+        if (here / "rerun").is_file():
+            os.environ["PATH"] = f"{here}{os.pathsep}{os.environ.get('PATH', '')}"
 
 
 def _flat(name: str) -> str:
