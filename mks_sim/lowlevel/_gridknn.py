@@ -62,7 +62,14 @@ def _load() -> dict[str, Any]:
 def _compile() -> dict[str, Any]:
     from mks_sim.lowlevel import _gridknn_kernels as k
 
-    return {"cell_coords": k.cell_coords, "count_occupied": k.count_occupied, "knn": k.knn_cells}
+    return {
+        "cell_keys": k.cell_keys,
+        "counting_order": k.counting_order,
+        "gather_columns": k.gather_columns,
+        "sort_rows": k.sort_rows,
+        "count_occupied": k.count_occupied,
+        "knn": k.knn_cells,
+    }
 
 
 def _dims(ext: NDArray[np.float64], h: float) -> NDArray[np.int64]:
@@ -113,8 +120,11 @@ def grid_knn(
 
     kern = _load()
     n, kdim = points.shape
-    pts = np.zeros((n, 3))
-    pts[:, :kdim] = points
+    if kdim == 3:
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+    else:  # pad with zero coordinates: the distances are unchanged, bit for bit
+        pts = np.zeros((n, 3))
+        pts[:, :kdim] = points
     nbr = np.empty((n, m), np.int64)  # rows not done are left as garbage (see Returns)
     dist = np.empty((n, m))
     lens = np.zeros(n, np.int64)
@@ -127,20 +137,22 @@ def grid_knn(
         return nbr, dist, lens, done
     h = _cell_size(pts, lo, ext, m)
     dims = _dims(ext, h)
-    coords = kern["cell_coords"](pts, lo, h, dims)
-    key = (coords[:, 0] * dims[1] + coords[:, 1]) * dims[2] + coords[:, 2]
-    order = np.argsort(key)
+    key = kern["cell_keys"](pts, lo, h, dims)
+    ncells = int(dims[0] * dims[1] * dims[2])
+    order = kern["counting_order"](key, ncells) if ncells <= 2 * n else np.argsort(key)
     skey = key[order]
     first = np.flatnonzero(np.r_[True, skey[1:] != skey[:-1]])
     ckey = skey[first]
     cstart = np.append(first, n).astype(np.int64)
-    ccoord = coords[order[first]]
+    ccoord = np.stack(
+        [ckey // (dims[1] * dims[2]), (ckey // dims[2]) % dims[1], ckey % dims[2]], axis=1
+    )
     if dims[0] * dims[1] <= 4 * n + 100_000:  # (x, y) column -> its first cell
         colptr = np.searchsorted(ckey // dims[2], np.arange(int(dims[0] * dims[1]) + 1))
         colptr = colptr.astype(np.int64)
     else:  # too many columns for a table (far outliers): binary search over all cells
         colptr = np.zeros(0, np.int64)
-    sx, sy, sz = (np.ascontiguousarray(pts[order, a]) for a in range(3))
+    sx, sy, sz = kern["gather_columns"](pts, order)
     sidx = order.astype(np.int64)
     thr = math.inf if threshold is None else float(threshold)
     scale = float(np.abs(pts).max())
@@ -162,3 +174,10 @@ def grid_knn(
     finally:
         numba.set_num_threads(old)
     return nbr, dist, lens, done
+
+
+def sort_rows(
+    indptr: NDArray[np.intp], cols: NDArray[np.intp], data: NDArray[np.float64]
+) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """Copies of CSR (cols, data) with each row sorted by column (compiled; short rows)."""
+    return _load()["sort_rows"](indptr, cols, data)  # type: ignore[no-any-return]

@@ -31,6 +31,78 @@ def cell_coords(pts, lo, h, dims):
     return out
 
 
+@nb.njit(cache=True, parallel=True)
+def cell_keys(pts, lo, h, dims):
+    """(N,) linear cell key (x-major, z fastest) of each point."""
+    n = pts.shape[0]
+    out = np.empty(n, np.int64)
+    for i in nb.prange(n):
+        key = 0
+        for a in range(3):
+            c = int(math.floor((pts[i, a] - lo[a]) / h))
+            if c < 0:
+                c = 0
+            elif c >= dims[a]:
+                c = dims[a] - 1
+            key = key * dims[a] + c
+        out[i] = key
+    return out
+
+
+@nb.njit(cache=True)
+def counting_order(keys, ncells):
+    """Stable order sorting ``keys`` (all in [0, ncells)): a counting sort, O(N + ncells)."""
+    count = np.zeros(ncells + 1, np.int64)
+    for k in keys:
+        count[k + 1] += 1
+    for c in range(ncells):
+        count[c + 1] += count[c]
+    order = np.empty(keys.shape[0], np.int64)
+    for i in range(keys.shape[0]):
+        k = keys[i]
+        order[count[k]] = i
+        count[k] += 1
+    return order
+
+
+@nb.njit(cache=True, parallel=True)
+def gather_columns(pts, order):
+    """The three coordinate columns of ``pts[order]``, contiguous."""
+    n = order.shape[0]
+    sx = np.empty(n)
+    sy = np.empty(n)
+    sz = np.empty(n)
+    for i in nb.prange(n):
+        j = order[i]
+        sx[i] = pts[j, 0]
+        sy[i] = pts[j, 1]
+        sz[i] = pts[j, 2]
+    return sx, sy, sz
+
+
+@nb.njit(cache=True, parallel=True)
+def sort_rows(indptr, cols, data):
+    """Copies of a CSR's (cols, data) with every row sorted by column (insertion sort: the
+    SPG's rows are short)."""
+    n = indptr.shape[0] - 1
+    oc = cols.copy()
+    od = data.copy()
+    for r in nb.prange(n):
+        a = indptr[r]
+        b = indptr[r + 1]
+        for i in range(a + 1, b):
+            c = oc[i]
+            d = od[i]
+            k = i
+            while k > a and oc[k - 1] > c:
+                oc[k] = oc[k - 1]
+                od[k] = od[k - 1]
+                k -= 1
+            oc[k] = c
+            od[k] = d
+    return oc, od
+
+
 @nb.njit(cache=True)
 def count_occupied(pts, lo, h, dims):
     n = pts.shape[0]

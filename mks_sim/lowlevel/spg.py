@@ -157,6 +157,7 @@ class SpatialProximityGraph:
         self.metric = tree.metric
         self.workers = workers
         self._tree: KDTree | DynamicKDTree | None = tree
+        self._grid_built = False
         self._data = tree.data if isinstance(tree, KDTree) else None
         self._leafsize = tree.leafsize
         if isinstance(tree, DynamicKDTree):
@@ -188,6 +189,7 @@ class SpatialProximityGraph:
             raise DataError(f"KDTree: expected leafsize >= 1, got {leafsize!r}")
         self._leafsize = int(leafsize)
         self._tree = None
+        self._grid_built = True  # numba is loaded: adjacency sorts its rows compiled too
         data = pts.copy()
         data.setflags(write=False)
         self._data = data
@@ -403,10 +405,17 @@ class SpatialProximityGraph:
         """
         if self._adj is None:
             n = self.n
-            adj = sparse.csr_array(
-                (self._dist.copy(), self._cols().copy(), self._indptr.copy()), shape=(n, n)
-            )
-            adj.sort_indices()  # permutes within rows, keeps explicit zeros
+            if self._grid_built and self._ids_are_range:
+                from mks_sim.lowlevel._gridknn import sort_rows
+
+                cols, data = sort_rows(self._indptr, self._nbr, self._dist)
+                adj = sparse.csr_array((data, cols, self._indptr.copy()), shape=(n, n))
+                adj.has_sorted_indices = True
+            else:
+                adj = sparse.csr_array(
+                    (self._dist.copy(), self._cols().copy(), self._indptr.copy()), shape=(n, n)
+                )
+                adj.sort_indices()  # permutes within rows, keeps explicit zeros
             self._adj = adj
         return self._adj
 
