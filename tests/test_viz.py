@@ -353,3 +353,22 @@ def test_episodes_follow_one_another_on_sim_time(tmp_path: Path) -> None:
     seconds = sorted((t.total_seconds() if hasattr(t, "total_seconds") else t / 1e9, e)
                      for t, e in rows)  # fmt: skip
     assert seconds == [(0.0, 4), (2.5, 4), (2.5, 5), (3.5, 5), (4.0, 5)]
+
+
+@needs_rerun
+def test_connect_to_no_viewer_fails_fast_before_work(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import socket
+
+    import mks_sim.viz.rerun_recorder as rerun_recorder
+
+    monkeypatch.setattr(rerun_recorder, "VIEWER_WAIT_S", 0.3)
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    rc = main(["localize", "--object", "cube", "--rerun", f"connect:127.0.0.1:{port}"])
+    captured = capsys.readouterr()
+    assert rc == 2 and captured.out == ""  # nothing localized
+    (line,) = captured.err.strip().splitlines()
+    assert "--rerun connect: no Rerun viewer listens there" in line and "save:PATH.rrd" in line
