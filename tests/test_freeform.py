@@ -217,3 +217,21 @@ def test_pair_consistency_and_reused_keypoints_match_the_direct_computation() ->
     assert [h.votes for h in again.hypotheses] == [h.votes for h in first.hypotheses]
     for a, b in zip(again.hypotheses, first.hypotheses, strict=True):
         np.testing.assert_allclose(a.matrix, b.matrix)
+
+
+def test_closed_form_triangle_fit_equals_kabsch() -> None:
+    from mks_sim.models.freeform import _batched_rigid, _triangle_rigid
+
+    rng = np.random.default_rng(4)
+    src = rng.normal(size=(500, 3, 3)) * 0.05
+    rot = np.stack([random_rotation(rng) for _ in range(500)])
+    noisy = np.einsum("tij,tkj->tki", rot, src) + rng.normal(size=(500, 3, 3)) * 0.001
+    for dst in (noisy, rng.normal(size=(500, 3, 3)) * 0.05):  # near-congruent, arbitrary
+        r1, t1 = _batched_rigid(src, dst)
+        r2, t2 = _triangle_rigid(src, dst)
+        np.testing.assert_allclose(r2, r1, atol=1e-9)
+        np.testing.assert_allclose(t2, t1, atol=1e-9)
+    line = np.zeros((1, 3, 3))
+    line[0, :, 0] = [0.0, 1.0, 2.0]  # collinear: falls back to the SVD
+    r1, _ = _batched_rigid(line, line + 1.0)
+    np.testing.assert_allclose(_triangle_rigid(line, line + 1.0)[0], r1)

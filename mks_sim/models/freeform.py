@@ -153,6 +153,48 @@ def _fibonacci_sphere(n: int) -> FloatArray:
     return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], 1)
 
 
+def _triangle_rigid(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Rigid fits of (T, 3, 3) triangles -> triangles, in closed form (no SVD).
+
+    Three points span a plane, so the proper rotation that best fits them maps the source
+    triangle's plane onto the destination's (normals from the same vertex order, the mirror
+    solution excluded as in :func:`_batched_rigid`) composed with the best in-plane rotation,
+    a 2-D Procrustes angle. Equals :func:`_batched_rigid` for triangles whose orientation
+    agrees (every congruent pair; the tests compare both); degenerate (collinear) triangles
+    fall back to it.
+    """
+    cs, cd = src.mean(axis=1), dst.mean(axis=1)
+    a, b = src - cs[:, None], dst - cd[:, None]
+
+    def frame(x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        n = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
+        nn = np.linalg.norm(n, axis=1)
+        e1 = x[:, 0] - x[:, 1]  # any in-plane direction
+        e1 = e1 / np.maximum(np.linalg.norm(e1, axis=1), 1e-300)[:, None]
+        n = n / np.maximum(nn, 1e-300)[:, None]
+        return np.stack([e1, np.cross(n, e1), n], axis=1), nn  # rows: e1, e2, n
+
+    fs, ns = frame(a)
+    fd, nd = frame(b)
+    pa = np.einsum("tij,tkj->tki", fs[:, :2], a)  # (T, 3, 2) in-plane coordinates
+    pb = np.einsum("tij,tkj->tki", fd[:, :2], b)
+    sin = (pa[..., 0] * pb[..., 1] - pa[..., 1] * pb[..., 0]).sum(axis=1)
+    cos = (pa[..., 0] * pb[..., 0] + pa[..., 1] * pb[..., 1]).sum(axis=1)
+    phi = np.arctan2(sin, cos)
+    rz = np.zeros((len(src), 3, 3))
+    rz[:, 0, 0] = rz[:, 1, 1] = np.cos(phi)
+    rz[:, 1, 0] = np.sin(phi)
+    rz[:, 0, 1] = -rz[:, 1, 0]
+    rz[:, 2, 2] = 1.0
+    r = np.einsum("tji,tjk,tkl->til", fd, rz, fs)  # Fd^T Rz Fs
+    scale = np.maximum(np.abs(a).max(axis=(1, 2)), np.abs(b).max(axis=(1, 2)))
+    bad = (ns <= 1e-9 * scale**2) | (nd <= 1e-9 * scale**2)
+    if bad.any():
+        r[bad] = _batched_rigid(src[bad], dst[bad])[0]
+    t = cd - np.einsum("tij,tj->ti", r, cs)
+    return r, t
+
+
 def _batched_rigid(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Kabsch fits of (T, k, 3) -> (T, k, 3): rotations (T, 3, 3), translations (T, 3)."""
     cs, cd = src.mean(axis=1), dst.mean(axis=1)
@@ -545,7 +587,7 @@ class FreeformModel:
         tri = _triangles(cons, cfg.max_triangles, np.random.default_rng(cfg.seed))
         if len(tri) == 0:
             return FreeformResult([], len(kp_idx), n_pair, 0, keypoints)
-        rot, trans = _batched_rigid(m_pos[tri], s_pos[tri])
+        rot, trans = _triangle_rigid(m_pos[tri], s_pos[tri])
         # Verify each triangle's rotation on its normals: the rotated model normals must agree
         # with the scene normals at all three corners (sign-free when normals were estimated).
         rn = np.einsum("tij,tkj->tki", rot, self.model_normals[pair_m][tri])  # (T, 3, 3)
