@@ -889,6 +889,13 @@ def localize_cloud(
             results.append((h, v.equivalents, v.inlier_fraction, si))
     results.sort(key=lambda r: (-r[0].score, r[0].rmse))
     results = results[:max_hypotheses]
+    if voxel_size > 0 and results:
+        # The voxel-averaged cloud found the pose; polish the best on the full-resolution
+        # points near it (averaging blurs edges by about a voxel).
+        t = time.perf_counter()
+        h0, eq0, frac0, si0 = results[0]
+        results[0] = (_polish_full_resolution(h0, surface, raw, voxel_size, rng), eq0, frac0, si0)
+        t_refine += time.perf_counter() - t
     timing["matching"] = t_match
     timing["refinement"] = t_refine
     # the engine's common stage names (``localize --json`` reports the same)
@@ -920,6 +927,38 @@ def localize_cloud(
         timing=timing,
         warnings=(size_warning,) if size_warning else (),
     )
+
+
+def _polish_full_resolution(
+    h: PoseHypothesis,
+    surface: ModelSurface,
+    raw: FloatArray,
+    voxel: float,
+    rng: np.random.Generator,
+    max_points: int = 4000,
+) -> PoseHypothesis:
+    """Point-to-plane ICP of a pose on the raw (not voxel-averaged) points near it; the pose
+    is kept when ICP fails or moves it by more than a voxel."""
+    from mks_sim.models.refine import icp_point_to_plane
+
+    T = np.asarray(h.matrix, dtype=np.float64)
+    centre = T[:3, :3] @ surface.points.mean(axis=0) + T[:3, 3]
+    radius = 0.5 * surface.size + 2.0 * voxel
+    near = raw[np.linalg.norm(raw - centre, axis=1) <= radius]
+    if len(near) < 30:
+        return h
+    if len(near) > max_points:
+        near = near[rng.choice(len(near), max_points, replace=False)]
+    try:
+        icp = icp_point_to_plane(surface, near, T, max_distance=2.0 * voxel, max_iterations=15)
+    except MksError:
+        return h
+    moved = float(np.linalg.norm(icp.matrix[:3, 3] - T[:3, 3]))
+    if not np.all(np.isfinite(icp.matrix)) or moved > voxel:
+        return h
+    ref_model = np.linalg.solve(T[:3, :3], h.reference_point - T[:3, 3])
+    ref = icp.matrix[:3, :3] @ ref_model + icp.matrix[:3, 3]
+    return replace(h, matrix=icp.matrix, reference_point=ref)
 
 
 def _diverse_planes(
