@@ -372,3 +372,25 @@ def test_connect_to_no_viewer_fails_fast_before_work(
     assert rc == 2 and captured.out == ""  # nothing localized
     (line,) = captured.err.strip().splitlines()
     assert "--rerun connect: no Rerun viewer listens there" in line and "save:PATH.rrd" in line
+
+
+@needs_rerun
+@pytest.mark.slow
+def test_snapshot_recording_reads_back(tmp_path: Path) -> None:
+    from mks_sim.sim import names
+
+    path = tmp_path / "snap.rrd"
+    assert main(["snapshot", "--scene", "scene1", "--out", str(tmp_path / "snap"),
+                 "--rerun", f"save:{path}"]) == 0  # fmt: skip
+    rec = read_recording(path)
+    for cam, size in (("overhead_camera", (640, 480)), ("depth_camera", (320, 240))):
+        fmt = last(rec, f"/world/cameras/{cam}/rgb", "Image:format")[0]
+        assert (fmt["width"], fmt["height"]) == size
+    fmt = last(rec, "/stereo/disparity", "DepthImage:format")[0]
+    assert (fmt["width"], fmt["height"]) == (640, 480)
+    # 2-D table sensors (x, y, radius) drawn on the table top as spheres of their radius
+    centers = np.asarray(last(rec, "/world/sensors/Circle_Detector", "Ellipsoids3D:centers"))
+    half = np.asarray(last(rec, "/world/sensors/Circle_Detector", "Ellipsoids3D:half_sizes"))
+    assert centers.shape[1] == 3 and len(centers) >= 1 and half.shape == centers.shape
+    np.testing.assert_allclose(centers[:, 2], names.TABLE_TOP_Z, atol=1e-6)
+    assert len(last(rec, "/world/spg/edges", "LineStrips3D:strips")) > 100
