@@ -381,8 +381,11 @@ def test_snapshot_recording_reads_back(tmp_path: Path) -> None:
 
     path = tmp_path / "snap.rrd"
     assert main(["snapshot", "--scene", "scene1", "--out", str(tmp_path / "snap"),
-                 "--rerun", f"save:{path}"]) == 0  # fmt: skip
+                 "--rerun", f"save:{path},normals"]) == 0  # fmt: skip
     rec = read_recording(path)
+    # normals on request: unit normals drawn 1 cm long from their points
+    vectors = np.asarray(last(rec, "/world/segmentation/normals", "Arrows3D:vectors"))
+    np.testing.assert_allclose(np.linalg.norm(vectors, axis=1), 0.01, atol=1e-5)
     for cam, size in (("overhead_camera", (640, 480)), ("depth_camera", (320, 240))):
         fmt = last(rec, f"/world/cameras/{cam}/rgb", "Image:format")[0]
         assert (fmt["width"], fmt["height"]) == size
