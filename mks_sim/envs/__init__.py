@@ -6,11 +6,15 @@ works after it and ``gymnasium.make("mks_sim:mks_sim/Grasp-v1")`` works without 
 - ``mks_sim/Grasp-v0``: binary grip (``action[4] < 0`` opens, ``>= 0`` closes).
 - ``mks_sim/Grasp-v1``: continuous grip (``action[4]`` is the finger velocity, a fraction of
   the actuator range); the scripted policy closes gently until touch, as the full loop does.
+- ``mks_sim/BinPick-v0``: the agent chooses which localized instance of a bin to pick
+  (``mks_sim.envs.bin_env``).
 """
 
 from __future__ import annotations
 
 ENV_IDS = ("mks_sim/Grasp-v0", "mks_sim/Grasp-v1")
+#: Bin picking (issue 13): an agent picks localized instances into the output box.
+BIN_ENV_ID = "mks_sim/BinPick-v0"
 _ENTRY_POINTS = {
     "mks_sim/Grasp-v0": "mks_sim.envs.grasp_env:GraspEnv",
     "mks_sim/Grasp-v1": "mks_sim.envs.grasp_env:GraspEnvV1",
@@ -29,4 +33,8 @@ def register_envs() -> None:
             entry_point=entry_point,
             max_episode_steps=200,
             kwargs={"object": "cube"},
+        )
+    if BIN_ENV_ID not in gymnasium.registry:  # bin picking (issue 13)
+        gymnasium.register(
+            id=BIN_ENV_ID, entry_point="mks_sim.envs.bin_env:BinPickEnv", max_episode_steps=26
         )

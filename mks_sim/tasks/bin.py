@@ -25,7 +25,9 @@ __all__ = [
     "BIN_SCENE",
     "MAX_INSTANCES",
     "bin_roi",
+    "BinPicker",
     "bin_world",
+    "clear_bin",
     "evaluate_instances",
     "instance_bodies",
     "run_localize_all",
@@ -346,6 +348,115 @@ def _nearest_body(world: World, bodies: Sequence[str], T: np.ndarray) -> str | N
 PlanPerturbation = Callable[[int, Any], Any]
 
 
+class BinPicker:
+    """The robot side of bin picking: sense all instances, plan a grasp, pick into the box.
+
+    Used by :func:`clear_bin` (the scripted loop) and ``mks_sim/BinPick-v0`` (an agent
+    chooses the instance). Nothing here reads ground truth; :meth:`evaluate_pick` does, for
+    the report only.
+
+    Args:
+        world: the bin world (:func:`bin_world`).
+        devices: the devices (``make_devices``; failed ones are served by alternates).
+        object_name: the database object in the bin (default the scene's).
+        rng: grasp sampling and localization.
+    """
+
+    def __init__(
+        self,
+        world: World,
+        devices: Any,
+        *,
+        object_name: str | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        from mks_sim.models.objects import load_object
+        from mks_sim.sim import names
+        from mks_sim.tasks.controller import ArmHandController, RobotNames
+        from mks_sim.tasks.episode import make_touch_reader
+        from mks_sim.tasks.spec import task_for_object
+
+        self.world = world
+        self.devices = devices
+        self.rng = np.random.default_rng(0) if rng is None else rng
+        self.name = object_name or next(iter(world.scene.models.values()))
+        self.obj = load_object(self.name)
+        self.action = task_for_object(self.name).action
+        self.bodies = [b for b, m in world.scene.models.items() if m == self.name]
+        self.ctl = ArmHandController(
+            world.physics, RobotNames.from_model(world.model), make_touch_reader(devices)
+        )
+        self.home_pos, self.home_yaw = self.ctl.pinch_pos(), self.ctl.pinch_yaw()
+        self.table_z = names.TABLE_TOP_Z
+        self.roi = bin_roi(world)
+        self.radius = float(np.max(np.linalg.norm(self.obj.mesh.vertices, axis=1)))
+        self.sensed: Any = None
+        self.perception_s = 0.0
+
+    def sense(self) -> list[Any]:
+        """One view: every instance found, best score first (``Instance``).
+
+        Raises:
+            MksError: sensing failed (every way of the points sensor).
+        """
+        from mks_sim.localization.instances import localize_instances
+
+        t = time.perf_counter()
+        self.sensed = localize_instances(self.devices, self.name, roi=self.roi, rng=self.rng)
+        self.perception_s = time.perf_counter() - t
+        return list(self.sensed.instances.instances)
+
+    def grasps(self, i: int, *, obstacles: bool = True) -> list[Any]:
+        """Collision-free grasp candidates of instance ``i`` of the last sensing, best first:
+        the other instances' points and everything else sensed (walls) are obstacles."""
+        from mks_sim.tasks.grasp import synthesize_grasps
+
+        T = self.sensed.instances.instances[i].matrix
+        obs = None
+        if obstacles:
+            P = self.sensed.scene_points
+            # the instance's own points are no obstacle: those near its estimate that no
+            # other instance claimed
+            own = np.linalg.norm(P - T[:3, 3], axis=1) < self.radius + 0.005
+            own &= ~_claimed_mask(self.sensed, i)
+            obs = P[~own & (P[:, 2] > self.table_z + 0.004)]
+        return synthesize_grasps(
+            self.obj, T, table_z=self.table_z, obstacles=obs, rng=self.rng,
+            preferred_yaw=self.ctl.pinch_yaw(),
+        )  # fmt: skip
+
+    def pick(
+        self, cands: Sequence[Any], index: int = 0, perturb: PlanPerturbation | None = None
+    ) -> tuple[bool, str]:
+        """Reach, close, lift out, drop in the output box, go home. Returns (believed
+        success from touch, failure reason)."""
+        from mks_sim.tasks.episode import TOUCH_THRESHOLD_N
+
+        ctl = self.ctl
+        ok, failure = _pick(
+            ctl, cands, self.action, index, perturb, self.table_z, TOUCH_THRESHOLD_N
+        )
+        if ok:
+            box = np.array([*OUTPUT_BOX_XY, self.table_z + RELEASE_HEIGHT_M])
+            ctl.move_to(box, ctl.pinch_yaw(), spacing_m=0.03)
+        ctl.open(15)
+        up = ctl.pinch_pos()
+        up[2] = max(up[2], self.table_z + CLEARANCE_ABOVE_M)
+        ctl.move_to(up, ctl.pinch_yaw(), spacing_m=0.02)
+        ctl.move_to(self.home_pos, self.home_yaw, spacing_m=0.03)
+        self.world.step(100)  # what was dropped comes to rest
+        return ok, failure
+
+    # -- evaluation only (ground truth) ------------------------------------------------------
+    def body_of(self, T: np.ndarray) -> str | None:
+        """The true instance nearest the estimate ``T`` (evaluation only)."""
+        return _nearest_body(self.world, self.bodies, T)
+
+    def picked(self) -> int:
+        """Instances in the output box (evaluation only)."""
+        return sum(in_output_box(self.world, b) for b in self.bodies)
+
+
 def clear_bin(
     world: World,
     devices: Any,
@@ -358,10 +469,9 @@ def clear_bin(
     """Clear the bin: sense, localize every instance, pick the best-scored one that has a
     collision-free reachable grasp, lift it out, drop it in the output box, repeat.
 
-    Stops when nothing is found, the bin's instances are all picked (the robot does not
-    know: it stops when sensing finds nothing), or ``budget`` picks were tried. A failed pick
-    is recorded with its reason and the loop goes on (the instance it failed on is tried
-    last next time).
+    Stops when nothing is found, no instance found has a collision-free grasp, or
+    ``budget`` picks were tried. A failed pick is recorded with its reason and the loop goes
+    on (the instance it failed on is tried last next time).
 
     Args:
         world: the bin world (:func:`bin_world`).
@@ -377,48 +487,20 @@ def clear_bin(
         "stopped"}`` (``picked``, ``present``, ``success`` are evaluation from ground truth).
     """
     from mks_sim.errors import MksError
-    from mks_sim.localization.instances import localize_instances
-    from mks_sim.models.objects import load_object
-    from mks_sim.sim import names
-    from mks_sim.tasks.controller import ArmHandController, RobotNames
-    from mks_sim.tasks.episode import TOUCH_THRESHOLD_N, make_touch_reader
-    from mks_sim.tasks.grasp import synthesize_grasps
-    from mks_sim.tasks.spec import task_for_object
 
     t_start = time.perf_counter()
-    rng = np.random.default_rng(0) if rng is None else rng
-    name = object_name or next(iter(world.scene.models.values()))
-    obj = load_object(name)
-    action = task_for_object(name).action
-    bodies = [b for b, m in world.scene.models.items() if m == name]
-    budget = 2 * len(bodies) + 2 if budget is None else budget
-    ctl = ArmHandController(
-        world.physics, RobotNames.from_model(world.model), make_touch_reader(devices)
-    )
-    home_pos, home_yaw = ctl.pinch_pos(), ctl.pinch_yaw()
-    table_z = names.TABLE_TOP_Z
-    roi = bin_roi(world)
+    robot = BinPicker(world, devices, object_name=object_name, rng=rng)
+    budget = 2 * len(robot.bodies) + 2 if budget is None else budget
     failed_at: list[np.ndarray] = []
     picks: list[Pick] = []
     stopped = "budget spent"
-    radius = float(np.max(np.linalg.norm(obj.mesh.vertices, axis=1)))
-
-    def retreat() -> None:
-        ctl.open(15)
-        up = ctl.pinch_pos()
-        up[2] = max(up[2], table_z + CLEARANCE_ABOVE_M)
-        ctl.move_to(up, ctl.pinch_yaw(), spacing_m=0.02)
-        ctl.move_to(home_pos, home_yaw, spacing_m=0.03)
-
     while len(picks) < budget:
         t0 = time.perf_counter()
         try:
-            sensed = localize_instances(devices, name, roi=roi, rng=rng)
+            found = robot.sense()
         except MksError as exc:
             stopped = f"sensing failed: {exc}"
             break
-        perception = time.perf_counter() - t0
-        found = list(sensed.instances.instances)
         if not found:
             stopped = "nothing found"
             break
@@ -430,62 +512,51 @@ def clear_bin(
             ),
         )
         chosen: tuple[int, Any] | None = None
+        blocked = no_pair = 0
         for i in order:
-            T = found[i].matrix
-            P = sensed.scene_points
-            # the instance's own points are no obstacle: those near its estimate that no
-            # other instance claimed (walls and neighbours are)
-            own = (np.linalg.norm(P - T[:3, 3], axis=1) < radius + 0.005) & ~_claimed_mask(
-                sensed, i
-            )
-            obstacles = P[~own & (P[:, 2] > table_z + 0.004)]
-            cands = synthesize_grasps(
-                obj, T, table_z=table_z, obstacles=obstacles, rng=rng,
-                preferred_yaw=ctl.pinch_yaw(),
-            )  # fmt: skip
+            cands = robot.grasps(i)
             if cands:
                 chosen = (i, cands)
                 break
+            # why not: no antipodal pair at all, or every pair blocked by the obstacles
+            if robot.grasps(i, obstacles=False):
+                blocked += 1
+            else:
+                no_pair += 1
         if chosen is None:
-            picks.append(
-                Pick(
-                    -1, False, False, "no grasp", time.perf_counter() - t0, perception, 1, 0.0, None
-                )
-            )
+            why = f"no grasp ({blocked} blocked by obstacles, {no_pair} without a pair)"
+            dt = time.perf_counter() - t0
+            picks.append(Pick(-1, False, False, why, dt, robot.perception_s, 1, 0.0, None))
             stopped = "no collision-free grasp for any instance found"
             break
         i, cands = chosen
         T = found[i].matrix
-        body = _nearest_body(world, bodies, T)  # evaluation only (the report)
-        ok, failure = _pick(ctl, cands, action, len(picks), perturb, table_z, TOUCH_THRESHOLD_N)
-        if ok:
-            box = np.array([*OUTPUT_BOX_XY, table_z + RELEASE_HEIGHT_M])
-            ctl.move_to(box, ctl.pinch_yaw(), spacing_m=0.03)
-        retreat()
-        world.step(100)
+        body = robot.body_of(T)  # evaluation only (the report)
+        ok, failure = robot.pick(cands, len(picks), perturb)
         success = body is not None and in_output_box(world, body)
         if ok and not success:
             failure = "not in the box"
         if not success:
             failed_at.append(T[:3, 3].copy())
+        dt = time.perf_counter() - t0
         picks.append(
             Pick(
                 i,
                 success,
                 ok,
                 "" if success else failure,
-                time.perf_counter() - t0,
-                perception,
+                dt,
+                robot.perception_s,
                 1,
                 float(found[i].score),
                 body,
             )  # fmt: skip
         )
-    picked = sum(in_output_box(world, b) for b in bodies)
+    picked = robot.picked()
     return {
-        "present": len(bodies),
+        "present": len(robot.bodies),
         "picked": picked,
-        "cleared_fraction": round(picked / max(len(bodies), 1), 4),
+        "cleared_fraction": round(picked / max(len(robot.bodies), 1), 4),
         "picks": [p.to_json() for p in picks],
         "time_s": round(time.perf_counter() - t_start, 3),
         "stopped": stopped,
