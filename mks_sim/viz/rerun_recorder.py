@@ -8,15 +8,8 @@ and their meaning: ``docs/visualization.md``. Timelines: ``sim_time`` (simulated
 from __future__ import annotations
 
 import logging
-import os
-import shutil
-import socket
-import sys
-import time
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit
 
 import cv2
 import numpy as np
@@ -26,20 +19,23 @@ from mks_sim import workstation
 from mks_sim.cli.snapshot import disparity
 from mks_sim.devices.camera import Camera
 from mks_sim.errors import MksError
-from mks_sim.lowlevel.regions import segment_surfaces
-from mks_sim.lowlevel.spg import SpatialProximityGraph
 from mks_sim.sensing import SensorGraph
 from mks_sim.sim import names
 from mks_sim.viz.recorder import DeviceTap, GraphTap, as_matrix
 from mks_sim.viz.scene import (
     body_to_world,
+    flat_name,
     geom_meshes,
-    object_clouds,
+    grasp_point,
+    grasp_quality,
     object_mesh,
+    rebuilt_grouping,
     transform_segments,
+    undirected_edges,
     wireframe,
 )
 from mks_sim.viz.spec import RerunSpec
+from mks_sim.viz.viewer import listening, viewer_on_path
 
 __all__ = ["RerunRecorder"]
 
@@ -85,7 +81,7 @@ class RerunRecorder:
             if spec.mode == "save":
                 self.rec.save(str(spec.target))
             elif spec.mode == "spawn":
-                _viewer_on_path()
+                viewer_on_path()
                 self.rec.spawn(port=SPAWN_PORT)
             else:
                 self.rec.connect_grpc(str(spec.target))
@@ -96,7 +92,7 @@ class RerunRecorder:
         # fail now, before any work.
         if spec.mode != "save":
             url = f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy" if spec.mode == "spawn" else spec.target
-            if not _listening(str(url), VIEWER_WAIT_S):
+            if not listening(str(url), VIEWER_WAIT_S):
                 self.rec.disconnect()
                 why = "the viewer did not start (no display?)" if spec.mode == "spawn" else (
                     "no Rerun viewer listens there")  # fmt: skip
@@ -254,7 +250,7 @@ class RerunRecorder:
         # bodies move. Names are flattened ("jaco_arm/b_1" -> "jaco_arm.b_1") so that no
         # body's entity is the parent of another's (their poses are world poses).
         for g in self._robot:
-            path = f"world/robot/{_flat(g.body)}/{_flat(g.name)}"
+            path = f"world/robot/{flat_name(g.body)}/{flat_name(g.name)}"
             color = (255 * g.rgba[:3]).astype(np.uint8)
             T = g.geom_to_body
             self.rec.log(path, rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]),
@@ -277,7 +273,7 @@ class RerunRecorder:
         self._sync_time(world)
         for body, bid in self._robot_bodies:
             T = body_to_world(world.data, bid)
-            self.rec.log(f"world/robot/{_flat(body)}",
+            self.rec.log(f"world/robot/{flat_name(body)}",
                          rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]))  # fmt: skip
         for j in self._robot_joints:
             q = float(world.data.joint(j).qpos[0])
@@ -355,7 +351,7 @@ class RerunRecorder:
         clouds = self._engine_grouping(snap)
         if clouds is None:
             pts = np.asarray(snap.get("Range_Points").data, dtype=float)[:, :3]
-            clouds = _rebuilt_grouping(pts[np.all(np.isfinite(pts), axis=1)])
+            clouds = rebuilt_grouping(pts[np.all(np.isfinite(pts), axis=1)])
         segs: list[np.ndarray] = []
         region_pts: list[np.ndarray] = []
         region_ids: list[np.ndarray] = []
@@ -406,7 +402,7 @@ class RerunRecorder:
             cloud = np.asarray(rep.objects, dtype=float)
             if len(cloud) < 3:
                 return []
-            return [(cloud, _undirected(rep.graph.adjacency), rep.segmentation)]
+            return [(cloud, undirected_edges(rep.graph.adjacency), rep.segmentation)]
         except (MksError, AttributeError, TypeError) as exc:
             log.debug("representation: %s", exc)
             return None
@@ -546,10 +542,10 @@ class RerunRecorder:
     def log_grasps(self, candidates: Sequence[Any], chosen: Any = None) -> None:
         pts, labels, quality, contacts = [], [], [], []
         for k, c in enumerate(candidates):
-            p = _grasp_point(c)
+            p = grasp_point(c)
             if p is None:
                 continue
-            q = _quality(c, k)
+            q = grasp_quality(c, k)
             pts.append(p)
             quality.append(q)
             labels.append(f"#{k} quality {q:.3f}"
@@ -566,7 +562,7 @@ class RerunRecorder:
         if contacts:
             self.rec.log("world/grasp/contacts",
                          rr.LineStrips3D(contacts, radii=0.0005, colors=(0, 120, 255)))  # fmt: skip
-        p = _grasp_point(chosen) if chosen is not None else None
+        p = grasp_point(chosen) if chosen is not None else None
         if p is not None:
             self.rec.log("world/grasp/chosen", rr.Points3D([p], colors=_CHOSEN, radii=0.005,
                                                            labels="chosen grasp"))  # fmt: skip
@@ -590,73 +586,3 @@ class RerunRecorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def _listening(url: str, wait_s: float) -> bool:
-    """True when something accepts TCP connections at the URL's host and port within
-    ``wait_s`` seconds."""
-    parts = urlsplit(url)
-    host, port = parts.hostname or "127.0.0.1", parts.port or SPAWN_PORT
-    deadline = time.monotonic() + wait_s
-    while True:
-        try:
-            with socket.create_connection((host, port), timeout=1.0):
-                return True
-        except OSError:
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.2)
-
-
-def _viewer_on_path() -> None:
-    """Put the ``rerun`` viewer installed beside this Python on PATH when PATH has none: the
-    SDK looks it up by name, and ``.venv/bin`` is not on PATH unless the venv is activated."""
-    if shutil.which("rerun") is None:
-        here = Path(sys.executable).parent
-        if (here / "rerun").is_file():
-            os.environ["PATH"] = f"{here}{os.pathsep}{os.environ.get('PATH', '')}"
-
-
-def _flat(name: str) -> str:
-    """A MuJoCo name as one entity-path part (``jaco_arm/b_1`` -> ``jaco_arm.b_1``)."""
-    return name.strip("/").replace("/", ".") or "root"
-
-
-def _undirected(adjacency: Any) -> np.ndarray:
-    """(E, 2) each undirected edge of a (directed, sparse) SPG once."""
-    A = adjacency.tocoo()
-    pairs = np.sort(np.c_[A.row, A.col], axis=1)
-    return np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
-
-
-def _rebuilt_grouping(points: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, Any]]:
-    """SPG (m = 8) and ``segment_surfaces`` of each object cloud, rebuilt for display."""
-    out: list[tuple[np.ndarray, np.ndarray, Any]] = []
-    for idx in object_clouds(points, names.TABLE_TOP_Z):
-        cloud = points[idx]
-        spg = SpatialProximityGraph(cloud, m=8)
-        try:
-            seg = segment_surfaces(cloud, spg)
-        except MksError as exc:
-            log.debug("segmentation: %s", exc)
-            seg = None
-        out.append((cloud, _undirected(spg.adjacency), seg))
-    return out
-
-
-def _quality(c: Any, rank: int) -> float:
-    """A candidate's quality: its own ``quality``, else its antipodality (1 = perfect),
-    else its rank (1, 1/2, 1/3, ...)."""
-    for attr in ("quality", "antipodal"):
-        q = getattr(c, attr, None)
-        if q is not None:
-            return float(q)
-    return 1.0 / (rank + 1)
-
-
-def _grasp_point(c: Any) -> np.ndarray | None:
-    for attr in ("grasp_point_world", "pinch_world", "position_world", "point_world"):
-        if hasattr(c, attr):
-            return np.asarray(getattr(c, attr), dtype=float)[:3]
-    T = as_matrix(getattr(c, "grasp_to_world", None))
-    return None if T is None else T[:3, 3]

@@ -5,6 +5,7 @@ No Rerun here (plain numpy), so the pieces are testable without the viewer.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import Any
 
@@ -12,11 +13,20 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
+from mks_sim.errors import MksError
 from mks_sim.geometry.meshes import box_mesh, uv_sphere
+from mks_sim.lowlevel.regions import segment_surfaces
 from mks_sim.lowlevel.spg import SpatialProximityGraph
+from mks_sim.sim import names
+from mks_sim.viz.recorder import as_matrix
 
 __all__ = [
     "GeomMesh",
+    "flat_name",
+    "grasp_point",
+    "grasp_quality",
+    "rebuilt_grouping",
+    "undirected_edges",
     "body_mesh",
     "body_to_world",
     "feature_edges",
@@ -25,6 +35,7 @@ __all__ = [
     "wireframe",
 ]
 
+log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 
@@ -208,3 +219,49 @@ def object_clouds(
     n, labels = spg.components()
     groups = [above[labels == k] for k in range(n)]
     return sorted((g for g in groups if len(g) >= 30), key=len, reverse=True)
+
+
+def flat_name(name: str) -> str:
+    """A MuJoCo name as one entity-path part (``jaco_arm/b_1`` -> ``jaco_arm.b_1``)."""
+    return name.strip("/").replace("/", ".") or "root"
+
+
+def undirected_edges(adjacency: Any) -> np.ndarray:
+    """(E, 2) each undirected edge of a (directed, sparse) SPG once."""
+    A = adjacency.tocoo()
+    pairs = np.sort(np.c_[A.row, A.col], axis=1)
+    return np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
+
+
+def rebuilt_grouping(points: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, Any]]:
+    """SPG (m = 8) and ``segment_surfaces`` of each object cloud, rebuilt for display."""
+    out: list[tuple[np.ndarray, np.ndarray, Any]] = []
+    for idx in object_clouds(points, names.TABLE_TOP_Z):
+        cloud = points[idx]
+        spg = SpatialProximityGraph(cloud, m=8)
+        try:
+            seg = segment_surfaces(cloud, spg)
+        except MksError as exc:
+            log.debug("segmentation: %s", exc)
+            seg = None
+        out.append((cloud, undirected_edges(spg.adjacency), seg))
+    return out
+
+
+def grasp_quality(c: Any, rank: int) -> float:
+    """A candidate's quality: its own ``quality``, else its antipodality (1 = perfect),
+    else its rank (1, 1/2, 1/3, ...)."""
+    for attr in ("quality", "antipodal"):
+        q = getattr(c, attr, None)
+        if q is not None:
+            return float(q)
+    return 1.0 / (rank + 1)
+
+
+def grasp_point(c: Any) -> np.ndarray | None:
+    """(3,) where a grasp candidate or plan closes (its pinch point), or None."""
+    for attr in ("grasp_point_world", "pinch_world", "position_world", "point_world"):
+        if hasattr(c, attr):
+            return np.asarray(getattr(c, attr), dtype=float)[:3]
+    T = as_matrix(getattr(c, "grasp_to_world", None))
+    return None if T is None else T[:3, 3]
