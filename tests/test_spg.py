@@ -236,7 +236,8 @@ def test_grid_spg_matches_brute_force(name, points, m, threshold):
 
 @pytest.mark.parametrize("dim", [1, 2, 3])
 @pytest.mark.parametrize("threshold", [None, 0.08])
-def test_grid_equals_tree_on_clustered_points(dim, threshold):
+@pytest.mark.parametrize("brute", [True, False])
+def test_grid_equals_tree_on_clustered_points(dim, threshold, brute, monkeypatch):
     # clusters of different densities, duplicates, a dense clump (crowded cells are left to the
     # tree) and far outliers (rows the grid cannot prove): the grid path must give exactly the
     # tree path's graph, and the grid itself must answer most rows
@@ -250,6 +251,10 @@ def test_grid_equals_tree_on_clustered_points(dim, threshold):
     parts.append(rng.random((4, dim)) * 100 + 50)  # outliers
     pts = np.concatenate(parts)[rng.permutation(sum(len(p) for p in parts))]
     assert grid_knn(pts, 6, threshold)[3].mean() > 0.8
+    import mks_sim.lowlevel.spg as spg_module
+
+    # the rows the grid leaves: by brute force, or (0 entries allowed) by the tree
+    monkeypatch.setattr(spg_module, "_BRUTE_ENTRIES", 10**12 if brute else 0)
     tree = SpatialProximityGraph(pts, m=6, threshold=threshold, method="tree")
     grid = SpatialProximityGraph(pts, m=6, threshold=threshold, method="grid")
     for a, b in ((grid.adjacency, tree.adjacency), (grid.symmetric(), tree.symmetric())):

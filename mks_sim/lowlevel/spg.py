@@ -50,6 +50,8 @@ _MAX_RUNS = 4096
 # method="auto" uses the compiled grid from this many points on: below it, the tree is fast
 # enough and a fresh process would pay numba's import (~0.5 s) for nothing.
 _GRID_MIN_POINTS = 250_000
+# Rows the grid leaves (x N points) up to which they are answered by brute force, not a tree.
+_BRUTE_ENTRIES = 50_000_000
 
 
 def _check_params(m: Neighbours, threshold: float | None) -> tuple[Neighbours, float | None]:
@@ -201,8 +203,11 @@ class SpatialProximityGraph:
         scaled = data if np.all(scale == 1.0) else data * scale
         nbr, dist, lens, done = grid_knn(scaled, mm, self.threshold, workers)
         rest = np.flatnonzero(~done)
-        if rest.size:  # outliers, crowded cells: the tree's exact rows
-            r_len, r_nbr, r_dist = self._compute_rows(rest.astype(np.intp))
+        if rest.size:  # outliers, crowded cells: exact rows by brute force or the tree
+            if rest.size * n <= _BRUTE_ENTRIES:  # a few rows: not worth building the tree
+                r_len, r_nbr, r_dist = self._brute_rows(rest.astype(np.intp))
+            else:
+                r_len, r_nbr, r_dist = self._compute_rows(rest.astype(np.intp))
             slot = np.arange(len(r_nbr)) - np.repeat(np.cumsum(r_len) - r_len, r_len)
             rows = np.repeat(rest, r_len)
             nbr[rest] = -1
@@ -219,6 +224,34 @@ class SpatialProximityGraph:
         self._indptr = np.zeros(n + 1, np.intp)
         np.cumsum(lens, out=self._indptr[1:])
         self._adj = None
+
+    def _brute_rows(
+        self, ids: NDArray[np.intp]
+    ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.float64]]:
+        """Rows of a few points (static, unreordered ids) against all points, by brute force."""
+        data = self._points_of(self._ids)
+        lens, nbrs, dists = [], [], []
+        for i in ids.tolist():
+            d = self.metric.distance(data[i], data)
+            d[i] = math.inf  # not its own neighbour
+            if self.threshold is not None:
+                d[d > self.threshold] = math.inf
+            k = min(int(self.m), len(d) - 1)
+            cand = np.argpartition(d, k - 1)[:k] if 0 < k < len(d) else np.arange(len(d))
+            # every point tied with the k-th distance competes on its index
+            cut = d[cand].max() if len(cand) else math.inf
+            cand = np.flatnonzero(d <= cut) if math.isfinite(cut) else cand[np.isfinite(d[cand])]
+            order = np.lexsort((cand, d[cand]))[:k]
+            sel = cand[order]
+            sel = sel[np.isfinite(d[sel])]
+            lens.append(len(sel))
+            nbrs.append(sel)
+            dists.append(d[sel])
+        return (
+            np.asarray(lens, np.intp),
+            np.concatenate(nbrs).astype(np.intp) if nbrs else np.zeros(0, np.intp),
+            np.concatenate(dists) if dists else np.zeros(0),
+        )
 
     # ------------------------------------------------------------------ the tree side
     def _points_of(self, ids: NDArray[np.intp]) -> NDArray[np.float64]:
