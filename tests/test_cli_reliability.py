@@ -127,18 +127,22 @@ def test_warnings_are_one_line(capsys, monkeypatch) -> None:
     assert err.strip() == "mks-sim: warning: something odd over two lines (RuntimeWarning)"
 
 
-def test_localize_cloud_degenerate_scene_is_clear_and_fast(capsys, tmp_path) -> None:
-    import time
+def test_localize_cloud_degenerate_scene_is_clear_and_fast(capsys, tmp_path, monkeypatch) -> None:
+    # "Fast" without a wall-clock assert: the degenerate scene is refused before any
+    # localization work starts (the slow path it used to take was RANSAC inside localize_cloud).
+    import mks_sim.localize
 
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("localize_cloud ran on a degenerate scene")
+
+    monkeypatch.setattr(mks_sim.localize, "localize_cloud", must_not_run)
     np.save(tmp_path / "same.npy", np.tile([0.1, 0.2, 0.8], (3000, 1)))
-    t0 = time.perf_counter()
     rc, out, err = _run(
         ["localize-cloud", "--model", "cube_5cm", "--scene", str(tmp_path / "same.npy")], capsys
     )
     assert rc == 2 and "expected points spread over a surface" in err
     assert "fit_plane" not in err and "ransac" not in err
     _one_line_error(err)
-    assert time.perf_counter() - t0 < 5.0
 
 
 @pytest.mark.parametrize("kind", ["dir", "devnull"])

@@ -333,13 +333,10 @@ def test_complex_npy_is_an_error_without_warnings(tmp_path: Path) -> None:
             read_point_cloud(tmp_path / "c.npy")
 
 
-def test_require_spread_rejects_degenerate_clouds_fast() -> None:
-    import time
-
+def test_require_spread_rejects_degenerate_clouds() -> None:
     from mks_sim.io.units import require_spread
 
     same = np.tile([0.1, 0.2, 0.3], (200_000, 1))
-    t0 = time.perf_counter()
     with pytest.raises(DataError, match=r"all 200000 points at \(0.1, 0.2, 0.3\)"):
         require_spread(same, "s.npy")
     line = np.c_[np.linspace(0, 1, 500), np.zeros(500), np.zeros(500)]
@@ -348,7 +345,6 @@ def test_require_spread_rejects_degenerate_clouds_fast() -> None:
     with pytest.raises(DataError, match="at least 3 finite points, got 2"):
         require_spread(np.array([[0, 0, 0], [1, 1, 1], [np.nan, 0, 0]]), "s.npy")
     require_spread(np.random.default_rng(0).random((100, 3)), "s.npy")  # fine
-    assert time.perf_counter() - t0 < 2.0
 
 
 def test_ply_mesh_with_a_bad_face_index_shows_the_real_error(tmp_path: Path) -> None:
