@@ -170,6 +170,7 @@ def knn_cells(
         bz = np.empty(max_block)
         bt = np.empty(max_block, np.int64)
         d2 = np.empty(max_block)
+        sel = np.empty(max_block + 1, np.int64)
         bd = np.empty(6)
         best_d = np.empty(m)
         best_d2 = np.empty(m)
@@ -178,7 +179,7 @@ def knn_cells(
             cell_rows(
                 c, sx, sy, sz, sidx, ccoord, ckey, cstart, colptr, todo, lo, h, dims, m, thr, ring,
                 margin, max_block, out_nbr, out_dist, out_len, done,
-                rlo, rhi, bx, by, bz, bt, d2, bd, best_d, best_d2, best_i,
+                rlo, rhi, bx, by, bz, bt, d2, sel, bd, best_d, best_d2, best_i,
             )  # fmt: skip
 
 
@@ -197,7 +198,7 @@ def lower_bound(a, v, lo_, hi_):
 def cell_rows(
     c, sx, sy, sz, sidx, ccoord, ckey, cstart, colptr, todo, lo, h, dims, m, thr, ring,
     margin, max_block, out_nbr, out_dist, out_len, done,
-    rlo, rhi, bx, by, bz, bt, d2, bd, best_d, best_d2, best_i,
+    rlo, rhi, bx, by, bz, bt, d2, sel, bd, best_d, best_d2, best_i,
 ):  # fmt: skip
     """The rows of the points of cell c (see knn_cells)."""
     s0 = cstart[c]
@@ -269,15 +270,20 @@ def cell_rows(
             d2[t] = (dx * dx + dy * dy) + dz * dz
         cnt = 0
         lim2 = lim0
-        if guess < lim2:
-            # Start from the guess when it holds m others: far fewer insertions.
-            inside = 0
-            for t in range(total):  # vectorised
-                inside += d2[t] <= guess
-            if inside > m:
-                lim2 = guess
-        # Rank by (squared distance, index); distances (sqrt) only for the kept ones.
+        # Candidates within the guess (or the threshold), compacted without branches.
+        lim = min(guess, lim0)
+        nsel = 0
         for t in range(total):
+            sel[nsel] = t
+            nsel += d2[t] <= lim
+        if nsel <= m:  # the guess holds too few (self counts): rank every candidate
+            nsel = 0
+            for t in range(total):
+                sel[nsel] = t
+                nsel += d2[t] <= lim0
+        # Rank by (squared distance, index); distances (sqrt) only for the kept ones.
+        for u in range(nsel):
+            t = sel[u]
             e2 = d2[t]
             if e2 > lim2:
                 continue
