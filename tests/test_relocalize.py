@@ -92,38 +92,43 @@ def _assembly(estimates: list):
     a.world = None
     a.estimate = np.eye(4)
     a._tracking = True
-    a._last_sensed = 0.0
+    a._last_sensed = a._last_found = 0.0
     a._adopt = lambda est: setattr(a, "estimate", est)  # type: ignore[method-assign]
     return a
 
 
-def _moved(dx: float = 0.0, yaw_deg: float = 0.0) -> np.ndarray:
+def _moved(dx: float = 0.0, yaw_deg: float = 0.0, dz: float = 0.0) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
     T = np.eye(4)
     T[:3, :3] = Rotation.from_euler("z", yaw_deg, degrees=True).as_matrix()
-    T[0, 3] = dx
+    T[0, 3], T[2, 3] = dx, dz
     return T
 
 
 def test_after_step_re_senses_every_period_and_corrects_only_real_moves() -> None:
-    """Brute force over the control periods of 1 s: re-sensing at 0.2, 0.4, ... s only; a
+    """Brute force over the control periods of 1.4 s: re-sensing at 0.2, 0.4, ... s only; a
     2 mm shift or the cube turned 90 degrees (a symmetry) is no move, 6 mm or 10 degrees is,
-    and a failed localization keeps the old estimate."""
-    estimates = [_moved(0.002), _moved(0.0, 90.0), None, _moved(0.006), _moved(0.006, 10.0)]
+    a failed localization keeps the old estimate, and moves no pushed object makes (10 cm in
+    0.2 s, or 3 cm up) are ignored."""
+    estimates = [_moved(0.002), _moved(0.0, 90.0), None, _moved(0.006), _moved(0.006, 10.0),
+                 _moved(0.106, 10.0), _moved(0.006, 10.0, dz=0.03)]  # fmt: skip
     a = _assembly(estimates)
     flags = []
-    for k in range(1, 51):  # 20 ms control periods
+    for k in range(1, 71):  # 20 ms control periods
         a.controller.time = 0.02 * k  # type: ignore[union-attr]
         flags.append(a.after_step())
     sensed = [round(r.sim_time_s, 2) for r in a.relocalizations]
-    assert sensed == [0.2, 0.4, 0.6, 0.8, 1.0]
-    assert [r.found for r in a.relocalizations] == [True, True, False, True, True]
-    assert [r.corrected for r in a.relocalizations] == [False, False, False, True, True]
+    assert sensed == [0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.4]
+    assert [r.found for r in a.relocalizations] == [True, True, False, True, True, True, True]
+    assert [r.corrected for r in a.relocalizations] == [False] * 3 + [True] * 2 + [False] * 2
+    assert [r.plausible for r in a.relocalizations] == [True] * 5 + [False] * 2
     assert sum(flags) == 2 and flags[39] and flags[49]  # interrupts at 0.8 s and 1.0 s
     assert a.relocalizations[0].shift_mm == pytest.approx(2.0)
     assert a.relocalizations[1].rotation_deg == pytest.approx(0.0, abs=1e-6)
     assert a.relocalizations[4].rotation_deg == pytest.approx(10.0)
+    assert a.relocalizations[5].shift_mm == pytest.approx(100.0)
+    np.testing.assert_allclose(a.estimate, _moved(0.006, 10.0))  # the last believed one
     a._tracking = False  # fingers closed: no more re-sensing
     a.controller.time = 2.0  # type: ignore[union-attr]
-    assert not a.after_step() and len(a.relocalizations) == 5
+    assert not a.after_step() and len(a.relocalizations) == 7

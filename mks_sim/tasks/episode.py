@@ -49,6 +49,15 @@ TOUCH_THRESHOLD_N = 0.05  # summed pad force; the pads' noise floor is ~5 mN
 RESENSE_PERIOD_S = 0.2
 CORRECTION_THRESHOLD_M = 0.004
 CORRECTION_THRESHOLD_DEG = 4.0
+# A move is believed only if it is one a pushed object can make: it slides on its support
+# (centre-of-mass height within 1 cm, gravity direction in its frame within 10 degrees,
+# modulo its symmetries) at most 0.3 m/s since the last estimate found (6 cm at least).
+# With the range finder failed, the stereo pair seen past the arm gave estimates 9-14 cm
+# away, tilted 21-156 degrees (measured, seeds 1010-1011): those are ignored.
+PLAUSIBLE_DZ_M = 0.01
+PLAUSIBLE_TILT_DEG = 10.0
+PLAUSIBLE_SPEED_M_S = 0.3
+PLAUSIBLE_MIN_SHIFT_M = 0.06
 MAX_CORRECTIONS = 4
 # Where set-up puts objects a task removes: on the floor, far outside every sensor's view.
 _PARKING = np.array([1.6, 1.6, 0.05])
@@ -64,6 +73,7 @@ class Relocalization:
         shift_mm: how far the centre of mass moved from the estimate being tracked, mm.
         rotation_deg: rotation between them modulo the object's symmetries, degrees.
         corrected: the target was corrected (the move exceeded the thresholds).
+        plausible: the move is one a pushed object can make (an implausible one is ignored).
     """
 
     sim_time_s: float
@@ -71,6 +81,7 @@ class Relocalization:
     shift_mm: float
     rotation_deg: float
     corrected: bool
+    plausible: bool = True
 
 
 @dataclass(frozen=True)
@@ -136,6 +147,7 @@ class EpisodeResult:
             "failure": self.failure,
             "relocalizations": len(self.relocalizations),
             "corrections": self.corrections,
+            "ignored_moves": sum(not r.plausible for r in self.relocalizations),
             "max_shift_mm": num(
                 max((r.shift_mm for r in self.relocalizations if r.found), default=float("nan"))
             ),  # fmt: skip
@@ -303,6 +315,16 @@ def _rotation_deg(obj: ObjectModel, a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.max(traces) - 1) / 2, -1.0, 1.0))))
 
 
+def _tilt_deg(obj: ObjectModel, a: np.ndarray, b: np.ndarray) -> float:
+    """How much the gravity direction seen in the object's frame changed from pose ``a`` to
+    ``b``, modulo the object's symmetries (0 when the orientation is not observable)."""
+    if not obj.orientation_observable:
+        return 0.0
+    up_a = a[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    up_b = obj.rotations @ (b[:3, :3].T @ np.array([0.0, 0.0, 1.0]))  # (S, 3)
+    return float(np.degrees(np.arccos(np.clip(np.max(up_b @ up_a), -1.0, 1.0))))
+
+
 class EpisodeAssembly:
     """One grasp episode: the task bound to a world, its devices and the robot.
 
@@ -358,6 +380,7 @@ class EpisodeAssembly:
         self.errors: list[tuple[float, float]] = [(float("nan"), float("nan"))]
         self._tracking = False
         self._last_sensed = -math.inf
+        self._last_found = -math.inf
         self._moved: np.ndarray | None = None
 
     # -- episode set-up ------------------------------------------------------------------
@@ -434,17 +457,30 @@ class EpisodeAssembly:
             self._note(f"t={ctl.time:.2f} s: re-sensing found nothing")
             return False
         com = self.obj.mesh.centroid
-        shift = float(np.linalg.norm((est[:3, :3] - self.estimate[:3, :3]) @ com
-                                     + est[:3, 3] - self.estimate[:3, 3]))  # fmt: skip
+        delta = (est[:3, :3] - self.estimate[:3, :3]) @ com + est[:3, 3] - self.estimate[:3, 3]
+        shift = float(np.linalg.norm(delta))
         rot = _rotation_deg(self.obj, self.estimate, est)
         moved = shift > CORRECTION_THRESHOLD_M or rot > CORRECTION_THRESHOLD_DEG
-        self.relocalizations.append(Relocalization(ctl.time, True, 1000 * shift, rot, moved))
-        if moved:
+        reach = max(PLAUSIBLE_MIN_SHIFT_M, PLAUSIBLE_SPEED_M_S * (ctl.time - self._last_found))
+        plausible = (
+            abs(float(delta[2])) <= PLAUSIBLE_DZ_M
+            and _tilt_deg(self.obj, self.estimate, est) <= PLAUSIBLE_TILT_DEG
+            and shift <= reach
+        )
+        self._last_found = ctl.time
+        corrected = moved and plausible
+        self.relocalizations.append(
+            Relocalization(ctl.time, True, 1000 * shift, rot, corrected, plausible)
+        )
+        if moved and not plausible:
+            self._note(f"t={ctl.time:.2f} s: ignored an implausible move ({1000 * shift:.1f} mm, "
+                       f"{rot:.1f} deg, {1000 * float(delta[2]):.0f} mm up)")  # fmt: skip
+        if corrected:
             self._note(f"t={ctl.time:.2f} s: object moved {1000 * shift:.1f} mm, "
                        f"{rot:.1f} deg; correcting the target")  # fmt: skip
             self._moved = est
             self._adopt(est)
-        return moved
+        return corrected
 
     def get_reward(self) -> float:
         """1 on success (ground truth), else 0."""
@@ -547,7 +583,7 @@ class EpisodeAssembly:
         assert ctl is not None
         est = self.localize()
         self._adopt(est)
-        self._last_sensed = ctl.time
+        self._last_sensed = self._last_found = ctl.time
         if est is None:
             return False, "not localized"
         act = self.task.action
