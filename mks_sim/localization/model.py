@@ -89,7 +89,10 @@ def model_from_mesh(mesh: Any, name: str, kind: str = "auto") -> tuple[Any, str]
     """
     if kind not in KINDS:
         raise DataError(f"model kind: expected one of {list(KINDS)}, got {kind!r}")
-    chosen = mesh_kind(mesh) if kind == "auto" else kind
+    try:
+        chosen = mesh_kind(mesh) if kind == "auto" else kind
+    except DataError as exc:
+        raise DataError(f"model {name!r}: {exc}") from None
     if chosen == "sphere":
         from mks_sim.models.sphere import SphereModel
 
