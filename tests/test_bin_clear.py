@@ -25,3 +25,13 @@ def test_a_failed_pick_is_reported_and_the_loop_goes_on():
     assert rest, rec  # the loop went on after the failure
     assert rest[0]["success"] is True, rec
     assert rec["picked"] == 1 and rec["cleared_fraction"] == 1.0
+
+
+@pytest.mark.slow
+def test_a_three_part_bin_is_cleared():
+    # seed 3: measured cleared, 3 picks (seeds 1, 2, 4 clear 2, 2, 1 of 3: docs/bin.md)
+    rec = run_clear_bin(3, count=3)
+    assert rec["present"] == 3
+    assert rec["picked"] == 3 and rec["cleared_fraction"] == 1.0, rec
+    assert rec["stopped"] == "nothing found"  # the robot saw the bin empty
+    assert all(p["views"] == 1 and p["time_s"] >= p["perception_s"] for p in rec["picks"])

@@ -406,19 +406,27 @@ class BinPicker:
         self.perception_s = time.perf_counter() - t
         return list(self.sensed.instances.instances)
 
-    def grasps(self, i: int, *, obstacles: bool = True) -> list[Any]:
-        """Collision-free grasp candidates of instance ``i`` of the last sensing, best first:
-        the other instances' points and everything else sensed (walls) are obstacles."""
+    def grasps(self, i: int, *, obstacles: str = "all") -> list[Any]:
+        """Collision-free grasp candidates of instance ``i`` of the last sensing, best first.
+
+        Args:
+            i: the instance (score order).
+            obstacles: ``"all"``: the other instances' points and everything else sensed
+                (walls) are obstacles; ``"fixed"``: only what no instance explains (walls: the
+                fingers may push neighbouring parts aside); ``"none"``.
+        """
         from mks_sim.tasks.grasp import synthesize_grasps
 
         T = self.sensed.instances.instances[i].matrix
         obs = None
-        if obstacles:
+        if obstacles != "none":
             P = self.sensed.scene_points
             # the instance's own points are no obstacle: those near its estimate that no
             # other instance claimed
             own = np.linalg.norm(P - T[:3, 3], axis=1) < self.radius + 0.005
             own &= ~_claimed_mask(self.sensed, i)
+            if obstacles == "fixed":
+                own |= _claimed_mask(self.sensed, -1)
             obs = P[~own & (P[:, 2] > self.table_z + 0.004)]
         return synthesize_grasps(
             self.obj, T, table_z=self.table_z, obstacles=obs, rng=self.rng,
@@ -513,16 +521,22 @@ def clear_bin(
         )
         chosen: tuple[int, Any] | None = None
         blocked = no_pair = 0
-        for i in order:
-            cands = robot.grasps(i)
-            if cands:
-                chosen = (i, cands)
+        # Clear of everything first; in a pile every part may have a neighbour within the
+        # fingers' clearance: then the fingers may push neighbouring parts (not the walls).
+        for obstacles in ("all", "fixed"):
+            blocked = no_pair = 0
+            for i in order:
+                cands = robot.grasps(i, obstacles=obstacles)
+                if cands:
+                    chosen = (i, cands)
+                    break
+                # why not: no antipodal pair at all, or every pair blocked by obstacles
+                if robot.grasps(i, obstacles="none"):
+                    blocked += 1
+                else:
+                    no_pair += 1
+            if chosen is not None:
                 break
-            # why not: no antipodal pair at all, or every pair blocked by the obstacles
-            if robot.grasps(i, obstacles=False):
-                blocked += 1
-            else:
-                no_pair += 1
         if chosen is None:
             why = f"no grasp ({blocked} blocked by obstacles, {no_pair} without a pair)"
             dt = time.perf_counter() - t0
@@ -564,8 +578,8 @@ def clear_bin(
 
 
 def _claimed_mask(sensed: Any, i: int) -> np.ndarray:
-    """(M,) over ``sensed.scene_points``: points some OTHER instance claimed (obstacles even
-    when they are near instance ``i``)."""
+    """(M,) over ``sensed.scene_points``: points some OTHER instance than ``i`` claimed
+    (``i = -1``: any instance)."""
     from scipy.spatial import cKDTree
 
     insts = sensed.instances.instances
