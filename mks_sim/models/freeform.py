@@ -176,22 +176,24 @@ def _triangle_rigid(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, Float
 
     fs, ns = frame(a)
     fd, nd = frame(b)
-    pa = np.einsum("tij,tkj->tki", fs[:, :2], a)  # (T, 3, 2) in-plane coordinates
-    pb = np.einsum("tij,tkj->tki", fd[:, :2], b)
-    sin = (pa[..., 0] * pb[..., 1] - pa[..., 1] * pb[..., 0]).sum(axis=1)
-    cos = (pa[..., 0] * pb[..., 0] + pa[..., 1] * pb[..., 1]).sum(axis=1)
-    phi = np.arctan2(sin, cos)
-    rz = np.zeros((len(src), 3, 3))
-    rz[:, 0, 0] = rz[:, 1, 1] = np.cos(phi)
-    rz[:, 1, 0] = np.sin(phi)
-    rz[:, 0, 1] = -rz[:, 1, 0]
-    rz[:, 2, 2] = 1.0
-    r = np.einsum("tji,tjk,tkl->til", fd, rz, fs)  # Fd^T Rz Fs
+    # in-plane coordinates (T, 3) of each triangle in its own frame
+    ax, ay = (a * fs[:, None, 0]).sum(axis=2), (a * fs[:, None, 1]).sum(axis=2)
+    bx, by = (b * fd[:, None, 0]).sum(axis=2), (b * fd[:, None, 1]).sum(axis=2)
+    phi = np.arctan2((ax * by - ay * bx).sum(axis=1), (ax * bx + ay * by).sum(axis=1))
+    co, si = np.cos(phi)[:, None], np.sin(phi)[:, None]
+    # R = Fd^T Rz(phi) Fs as a sum of outer products (elementwise: no batched einsum)
+    m0 = co * fs[:, 0] - si * fs[:, 1]
+    m1 = si * fs[:, 0] + co * fs[:, 1]
+    r = (
+        fd[:, 0, :, None] * m0[:, None, :]
+        + fd[:, 1, :, None] * m1[:, None, :]
+        + fd[:, 2, :, None] * fs[:, 2, None, :]
+    )
     scale = np.maximum(np.abs(a).max(axis=(1, 2)), np.abs(b).max(axis=(1, 2)))
     bad = (ns <= 1e-9 * scale**2) | (nd <= 1e-9 * scale**2)
     if bad.any():
         r[bad] = _batched_rigid(src[bad], dst[bad])[0]
-    t = cd - np.einsum("tij,tj->ti", r, cs)
+    t = cd - (r * cs[:, None, :]).sum(axis=2)
     return r, t
 
 
@@ -590,15 +592,16 @@ class FreeformModel:
         rot, trans = _triangle_rigid(m_pos[tri], s_pos[tri])
         # Verify each triangle's rotation on its normals: the rotated model normals must agree
         # with the scene normals at all three corners (sign-free when normals were estimated).
-        rn = np.einsum("tij,tkj->tki", rot, self.model_normals[pair_m][tri])  # (T, 3, 3)
-        dots = np.einsum("tki,tki->tk", rn, kp_n[pair_s][tri])
+        # rotated model normals (T, 3 corners, 3), elementwise (batched einsum is slower)
+        rn = (self.model_normals[pair_m][tri][:, :, None, :] * rot[:, None, :, :]).sum(axis=3)
+        dots = (rn * kp_n[pair_s][tri]).sum(axis=2)
         if normals is None:
             dots = np.abs(dots)
         good = np.all(dots >= np.cos(np.radians(cfg.normal_tolerance_deg)), axis=1)
         tri, rot, trans = tri[good], rot[good], trans[good]
         if len(tri) == 0:
             return FreeformResult([], len(kp_idx), n_pair, 0, keypoints)
-        ref = np.einsum("tij,j->ti", rot, self.reference_point) + trans  # (T, 3) votes for P0
+        ref = (rot * self.reference_point).sum(axis=2) + trans  # (T, 3) votes for P0
         hyps = self._peaks(ref, rot, trans, tri, kp_idx[pair_s], pair_m)
         return FreeformResult(hyps, len(kp_idx), n_pair, len(tri), keypoints)
 
