@@ -400,6 +400,7 @@ def vertex_hypotheses(
     vote_distance: float,
     max_angle_deg: float = 20.0,
     keep: int = 100,
+    rotinv: bool = True,
 ) -> list[PoseHypothesis]:
     """Pose hypotheses from matching detected vertexes (with face normals) to model corners.
 
@@ -408,6 +409,10 @@ def vertex_hypotheses(
     a translation (vertex onto corner). Votes: the detected vertexes that some transformed
     model corner lands within ``vote_distance`` of. With three or more detected vertexes the
     rotation-invariant Hough (section 2.2.1) adds its maxima when that matcher is available.
+
+    Args:
+        rotinv: add the rotation-invariant Hough's maxima (the workstation runs that matcher
+            on its model's logical sensor instead).
 
     Returns:
         At most ``keep`` hypotheses, most voted first (ties: better quick inlier fraction).
@@ -444,7 +449,8 @@ def vertex_hypotheses(
             corr = np.column_stack([j[k, hit], np.flatnonzero(hit)]).astype(np.int64)
             corr = corr[np.unique(corr[:, 0], return_index=True)[1]]
             out.append((len(corr), make_transform(R[k], t[k]), corr))
-    out.extend(_rotinv_hypotheses(model, detected, vote_distance))
+    if rotinv:
+        out.extend(_rotinv_hypotheses(model, detected, vote_distance))
     if not out:
         return []
     # Rank by votes; break ties among the first ``keep`` by a quick inlier fraction.

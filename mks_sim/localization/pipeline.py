@@ -142,9 +142,14 @@ def polyhedral_candidates(
     max_icp: int = 8,
     prescreen: int = 4,
     max_hypotheses: int = 30,
+    rotinv: bool = False,
     timing: dict[str, float] | None = None,
 ) -> tuple[list[PoseHypothesis], list[int]]:
     """Verified candidates of a polyhedral model over the segments, best score first.
+
+    Segments showing less than 5 % of the model's area (points x spacing^2) are skipped;
+    ``rotinv`` adds the rotation-invariant Hough over each segment's vertexes (off: the
+    workstation runs it on the model's logical sensor).
 
     Returns:
         (hypotheses, segment index of each).
@@ -162,6 +167,10 @@ def polyhedral_candidates(
     spacing = rep.spacing
     from mks_sim.localization.verify import surface_coverage
 
+    # the model's area: uniform samples have a median nearest-neighbour distance of
+    # 0.47 / sqrt(density)
+    model_area = len(surface.points) * (surface.spacing / 0.47) ** 2
+
     results: list[tuple[PoseHypothesis, int]] = []
     t_hyp = t_ver = 0.0
     for si, seg in enumerate(segments):
@@ -169,7 +178,11 @@ def polyhedral_candidates(
         noise = float(np.median([p.plane.rmse for p in seg.planes])) if seg.planes else 0.0
         inlier = max(1.0 * spacing, rep.voxel, 3.0 * noise)
         t = time.perf_counter()
-        hyps = vertex_hypotheses(model, seg.vertexes, seg_pts, vote_distance=4 * spacing)
+        if len(seg_pts) * spacing**2 < 0.25 * VISIBLE_FRACTION * model_area:
+            continue  # shows under 5 % of the model's area: a fragment, not the object
+        hyps = vertex_hypotheses(
+            model, seg.vertexes, seg_pts, vote_distance=4 * spacing, rotinv=rotinv
+        )
         t_hyp += time.perf_counter() - t
         t = time.perf_counter()
         verified = verify_hypotheses(
