@@ -287,7 +287,8 @@ class Pick:
         instance: index of the instance picked, in the score order of that sensing.
         success: the part ended in the output box (ground truth, evaluation only).
         believed: what the robot concluded (two-sided touch while lifting).
-        failure: why it failed ("" on success): ``no grasp``, ``unreachable``,
+        failure: why it failed ("" on success): ``no grasp``, ``unreachable`` (pre-grasp
+            out of reach, or the descent blocked),
             ``no two-sided contact``, ``closed on nothing``, ``slipped``, ``not in the box``.
         time_s: wall-clock seconds: sensing + localization + planning + motion.
         perception_s: of which sensing + localization.
@@ -447,7 +448,7 @@ class BinPicker:
         if ok:
             box = np.array([*OUTPUT_BOX_XY, self.table_z + RELEASE_HEIGHT_M])
             ctl.move_to(box, ctl.pinch_yaw(), spacing_m=0.03)
-        ctl.open(15)
+        ctl.open(50)  # the part falls free before the hand moves (15 periods dragged it out)
         up = ctl.pinch_pos()
         up[2] = max(up[2], self.table_z + CLEARANCE_ABOVE_M)
         ctl.move_to(up, ctl.pinch_yaw(), spacing_m=0.02)
@@ -605,19 +606,22 @@ def _pick(
     """Reach, close and lift with the first reachable candidate. Returns (believed held,
     failure reason)."""
     plan = None
+    no_ik = blocked = 0
     for cand in cands[:4]:
         p = cand.plan(action)
         if perturb is not None:
             p = perturb(index, p)
         ctl.preshape(p.preshape_q, 10)
         if not ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.03):
+            no_ik += 1
             continue
         if ctl.move_to(np.asarray(p.grasp_point_world), p.yaw_rad, spacing_m=0.01):
             plan = p
             break
+        blocked += 1
         ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.02)
     if plan is None:
-        return False, "unreachable"
+        return False, f"unreachable ({no_ik} pre-grasp, {blocked} descent blocked)"
     closed = ctl.close(threshold=touch_n, yaw=plan.yaw_rad)
     a, b = closed.sides(touch_n)
     if not (a and b):
