@@ -15,16 +15,14 @@ Run:  .venv/bin/python benchmarks/localize.py [--trials 8] [--quick] [--out benc
 from __future__ import annotations
 
 import argparse
-import datetime
 import logging
-import os
-import platform
 import statistics
 import sys
 import time
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -32,6 +30,9 @@ from mks_sim.geometry.meshes import Mesh, box_mesh, industrial_part_mesh, sample
 from mks_sim.geometry.scan import synthetic_scan
 from mks_sim.geometry.transforms import cube_rotations, make_transform, pose_error
 from mks_sim.localize import PolyhedralModel, localize_cloud
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _provenance import header_lines  # noqa: E402
 
 TABLE = (box_mesh((0.8, 0.8, 0.02)), make_transform(np.eye(3), [0.0, 0.0, -0.01]))
 
@@ -165,6 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.quick:
         args.trials = min(args.trials, 2)
+    header = header_lines("python benchmarks/localize.py " + " ".join(sys.argv[1:] if argv is None else argv))
     logging.basicConfig(level=logging.ERROR)
 
     cube = Obj("cube 50 mm", box_mesh(0.05), 0.025, cube_rotations())
@@ -203,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
                 (obj.name, f"{noise * 1000:.1f}", f"{res[0]}x{res[1]}", n_obj, r_ours, r_o3d)
             )
             print(rows[-1], file=sys.stderr)
-    write_report(args.out, rows, args.trials, o3d_note)
+    write_report(args.out, rows, args.trials, o3d_note, header)
     return 0
 
 
@@ -214,15 +216,12 @@ def _spacing(pts: np.ndarray) -> float:
     return float(np.median(cKDTree(pts).query(sub, k=2)[0][:, 1]))
 
 
-def write_report(path: str, rows, trials: int, o3d_note: str) -> None:
-    now = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
+def write_report(path: str, rows, trials: int, o3d_note: str, header: list[str]) -> None:
     lines = [
         "# Localization in one-sided range scans: mks_sim vs Open3D FPFH+RANSAC+ICP",
         "",
-        f"- date: {now}; machine: {os.cpu_count()} CPU cores shared with other jobs, "
-        f"{platform.python_implementation()} {platform.python_version()}; {o3d_note}",
-        "- command: `.venv/bin/python benchmarks/localize.py"
-        + (f" --trials {trials}`" if trials != 8 else "`"),
+        *header,
+        f"- peer: {o3d_note}",
         f"- {trials} trials per row: object on a table at random yaw and position, one scan from "
         "an oblique viewpoint (0.45 m out, 0.4 m up, random azimuth, 22 deg field of view), "
         "Gaussian range noise; the same clouds go to both methods (table included).",
@@ -233,8 +232,8 @@ def write_report(path: str, rows, trials: int, o3d_note: str) -> None:
         "cluster, FPFH (radius 5 voxels), feature-matching RANSAC (100k iterations, 0.999), "
         "point-to-plane ICP. Ours: `localize_cloud(model, points, viewpoint=eye)` defaults.",
         "- Open3D's multithreaded RANSAC is not reproducible run to run (its success varied "
-        "by a few trials per row between our runs); ours is deterministic. Wall times on a "
-        "machine shared with other jobs vary by ~2x between runs; compare within a row.",
+        "by a few trials per row between our runs); ours is deterministic. Compare times within "
+        "a row; a run on a busy machine (load >= 1, flagged above) favours neither reliably.",
         "",
         "| object | noise mm | scan px | scene points | ours success | ours rot deg | ours trans % "
         "| ours ms | O3D success | O3D rot deg | O3D trans % | O3D ms |",
