@@ -27,8 +27,8 @@ test: $(VENV)/.installed-test
 
 bench: $(VENV)/.installed-test
 	$(PY) -m pip install --quiet -e ".[bench]"
-	$(PY) benchmarks/spg.py
-	$(PY) benchmarks/collect_results.py
+	# every benchmark alone, then RESULTS.md (BENCH_PROFILE=short: fewer seeds; see the script)
+	PY=$(PY) benchmarks/run_all.sh
 
 clean:
 	rm -rf $(VENV) build dist *.egg-info .pytest_cache .mypy_cache .ruff_cache

@@ -19,7 +19,10 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-ORDER = ("spg", "localize", "localize_sim", "freeform", "objects", "grasp", "env", "backends")
+ORDER = (
+    "spg", "localize", "localize_sim", "freeform", "env", "grasp", "objects", "bin", "backends",
+    "grasp_synthesis",
+)
 HEADER = """# Benchmark results
 
 Every number here came from a run of the named script on this project's machines (x86_64,

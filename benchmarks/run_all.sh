@@ -1,0 +1,53 @@
+#!/usr/bin/env bash
+# Every benchmark, one after another, alone on an idle machine; then RESULTS.md is reassembled.
+#
+#   benchmarks/run_all.sh            # the sizes the issues ask for (about 3 hours on 2 cores)
+#   BENCH_PROFILE=short benchmarks/run_all.sh   # fewer seeds/trials (about 1 hour), same scripts
+#   BENCH_ONLY="localize_sim env" benchmarks/run_all.sh   # a subset, by results-file name
+#
+# Each script writes benchmarks/results/<name>.md with its provenance lines (commit, date,
+# load average before that script started, command), so a reader sees what a short profile
+# left out. The run refuses to start while the 1-minute load average is >= 1 (wait for the
+# machine to go idle; BENCH_FORCE=1 runs anyway and each table is then flagged BUSY).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PY:-.venv/bin/python}
+PROFILE=${BENCH_PROFILE:-full}
+ONLY=${BENCH_ONLY:-spg localize localize_sim freeform env grasp objects bin backends grasp_synthesis}
+R=benchmarks/results
+
+load=$(cut -d' ' -f1 /proc/loadavg)
+if [ "${BENCH_FORCE:-0}" != 1 ] && awk "BEGIN{exit !($load >= 1.0)}"; then
+  echo "run_all: load average $load >= 1: the machine is busy; wait, or BENCH_FORCE=1" >&2
+  exit 2
+fi
+# The contrib build of OpenCV in the venv has ppf_match_3d (bench extra); freeform.py runs it
+# in a subprocess with this folder on its path.
+SITE=$($PY -c "import sysconfig; print(sysconfig.get_paths()['purelib'])")
+
+if [ "$PROFILE" = short ]; then
+  SIM_N=50; FF_TRIALS=2; GRASP_EP=20; OBJ_N=6; BIN_N=4; BACK_EP=12
+else
+  SIM_N=100; FF_TRIALS=4; GRASP_EP=100; OBJ_N=50; BIN_N=20; BACK_EP=24
+fi
+
+run() {  # name, command...
+  local name=$1; shift
+  case " $ONLY " in *" $name "*) ;; *) return 0 ;; esac
+  echo "== $name: $* (load $(cut -d' ' -f1-3 /proc/loadavg))" >&2
+  local t0=$SECONDS
+  "$@"
+  echo "== $name done in $((SECONDS - t0)) s" >&2
+}
+
+run spg $PY benchmarks/spg.py --large
+run localize $PY benchmarks/localize.py --trials 4
+run localize_sim $PY benchmarks/localize_sim.py --n $SIM_N --no-progress --out $R/localize_sim.md
+run freeform $PY benchmarks/freeform.py --trials $FF_TRIALS --cv-contrib "$SITE"
+run env $PY benchmarks/env.py
+run grasp $PY benchmarks/grasp.py --episodes $GRASP_EP --workers 2
+run objects $PY benchmarks/objects.py --n $OBJ_N --workers 2 --out $R/objects.md
+run bin $PY benchmarks/bin.py --n $BIN_N --workers 2 --out $R/bin.md
+run backends $PY benchmarks/backends.py --episodes $BACK_EP --out $R/backends.md
+run grasp_synthesis $PY benchmarks/grasp_synthesis.py
+$PY benchmarks/collect_results.py
