@@ -41,6 +41,13 @@ PAD_SOLIMP = (0.6, 0.95, 0.002, 0.5, 2.0)
 PAD_MARGIN = 0.001
 PAD_FRICTION = (1.2, 0.01, 0.0002)
 FINGER_FRICTION = (1.0, 0.01, 0.0002)
+# Wrist camera (RGB-D, device ``wrist_camera``; bin room, issue 13): on the hand body, 7 cm
+# beside the palm axis and 10 cm behind the pinch point, looking along the fingers (MuJoCo
+# cameras look along their -z, the hand body's -z is the fingers' direction), so the open
+# fingers stay out of its 60 degree view.
+WRIST_CAMERA = "wrist_camera"
+WRIST_CAMERA_POS = (0.07, 0.0, -0.09)
+WRIST_CAMERA_FOVY = 60.0
 
 
 @dataclass(frozen=True)
@@ -77,6 +84,9 @@ def add_robot(root: mjcf.RootElement) -> Robot:
     for model in (arm.mjcf_model, hand.mjcf_model):
         for body in model.find_all("body"):
             body.gravcomp = 1.0
+    hand.mjcf_model.find("body", "hand").add(
+        "camera", name=WRIST_CAMERA, pos=WRIST_CAMERA_POS, fovy=WRIST_CAMERA_FOVY
+    )
     arm.attach(hand)
     base = root.worldbody.add("site", name=names.ROBOT_BASE_SITE, pos=names.ROBOT_BASE_POS)
     base.attach(arm.mjcf_model)
