@@ -1,7 +1,8 @@
 """The workstation's device set: ``make_devices(model, data, rng, faults) -> DeviceSet``.
 
 Stable device names (``docs/architecture.md``): ``overhead_camera``, ``stereo_left``,
-``stereo_right``, ``depth_camera``, ``range_finder``, ``touch_finger_1..3``. Each device gets
+``stereo_right``, ``depth_camera``, ``range_finder``, ``touch_finger_1..3``, ``wrist_camera``
+(RGB-D on the Jaco's hand, moved by the arm; issue 13). Each device gets
 its own generator spawned from ``rng`` in that fixed order, so one seed gives the same readings
 however many devices are read. A device whose MuJoCo element is missing from the model (a
 world without a hand has no touch pads) is left out, with a log message.
@@ -27,7 +28,11 @@ logger = logging.getLogger(__name__)
 
 CAMERA_DEVICES = ("overhead_camera", "stereo_left", "stereo_right", "depth_camera")
 TOUCH_DEVICES = ("touch_finger_1", "touch_finger_2", "touch_finger_3")
-DEVICE_NAMES = (*CAMERA_DEVICES, "range_finder", *TOUCH_DEVICES)
+#: Cameras carried by the robot: device name -> MuJoCo camera (inside the attached hand).
+ROBOT_CAMERAS = {"wrist_camera": f"{sim_names.HAND_PREFIX}wrist_camera"}
+# New devices go last: each device's generator is the i-th child of the seed, so appending
+# keeps every existing device's readings.
+DEVICE_NAMES = (*CAMERA_DEVICES, "range_finder", *TOUCH_DEVICES, *ROBOT_CAMERAS)
 
 # Default options per device (overridable through make_devices(options=...)).
 DEFAULT_OPTIONS: dict[str, dict[str, Any]] = {
@@ -47,6 +52,7 @@ DEFAULT_OPTIONS: dict[str, dict[str, Any]] = {
     "touch_finger_1": {},
     "touch_finger_2": {},
     "touch_finger_3": {},
+    "wrist_camera": {"width": 320, "height": 240, "depth": True},
 }
 
 
@@ -162,6 +168,13 @@ def _make_one(
             return None
         opts.setdefault("noise", camera_noise)
         return Camera(model, data, name, rng, name=name, **opts)
+    if name in ROBOT_CAMERAS:
+        camera = ROBOT_CAMERAS[name]
+        if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
+            logger.info("device %s: no camera %s in the model; left out", name, camera)
+            return None
+        opts.setdefault("noise", camera_noise)
+        return Camera(model, data, camera, rng, name=name, **opts)
     if name == "range_finder":
         mounts = [
             m
