@@ -70,17 +70,16 @@ if TYPE_CHECKING:
     from mks_sim.sensing import SensorGraph
 
 __all__ = [
-    "OBJECT_SCENES",
     "WorkstationLocalization",
     "localize",
     "localize_object",
+    "table_z_m",
+    "workstation_representation",
 ]
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
-#: object name -> the scene it is localized in (CLI, benchmark).
-OBJECT_SCENES: dict[str, str] = {"cube": "scene2", "sphere": "scene2", "part": "part"}
 POINTS_SENSOR = "Range_Points"
 # An object segment whose points a consistent candidate explains at least this fraction of
 # needs no support-face hypotheses.
@@ -90,13 +89,43 @@ SPHERE_SENSOR = "Sphere_Detector"
 # matching (the workstation's spheres are 3 cm; larger fits are curved-region artefacts).
 MIN_EXPLAINED_SPHERE_M = 0.01
 MAX_EXPLAINED_SPHERE_M = 0.05
-TABLE_Z_M = 0.75  # nominal table height: a sensor calibration parameter (sensors/points.toml)
-#: The representation the flow asks the snapshot for: the description sensors' parameters
-#: (``sensors/points.toml``: table height and margin, SPG gap and neighbours), so the
-#: sensors and the matchers share one representation of ``Range_Points``.
-WORKSTATION_REPRESENTATION = RepresentationConfig(
-    table_z_m=TABLE_Z_M, table_margin_m=0.002, gap_m=0.012, m=12
-)
+#: The description sensor whose ``params`` (``sensors/points.toml``: nominal table height and
+#: margin, SPG gap and neighbours) the flow's representation of ``Range_Points`` shares.
+REPRESENTATION_SENSOR = "Vertex_Detector"
+
+
+def workstation_representation(graph: SensorGraph | None = None) -> RepresentationConfig:
+    """The representation the flow asks the snapshot for: the parameters of
+    :data:`REPRESENTATION_SENSOR` in the sensor files (default graph: ``sensors/``), so the
+    description sensors and the matchers share one representation of ``Range_Points``.
+
+    Raises:
+        SpecError: the sensor has no ``table_z_m`` parameter (a sensor calibration value).
+    """
+    from mks_sim.errors import SpecError
+
+    graph = graph if graph is not None else _default_graph()
+    spec = graph.sensor(REPRESENTATION_SENSOR)
+    params = spec.params
+    if not isinstance(params.get("table_z_m"), int | float):
+        raise SpecError(
+            f"sensor {REPRESENTATION_SENSOR}: field 'params.table_z_m': expected the nominal "
+            f"table height (metres), got {params.get('table_z_m')!r}"
+        )
+    return RepresentationConfig(
+        table_z_m=float(params["table_z_m"]),
+        table_margin_m=float(params.get("table_margin_m", 0.002)),
+        gap_m=float(params.get("gap_m", 0.012)),
+        m=int(params.get("m", 12)),
+    )
+
+
+def table_z_m(graph: SensorGraph | None = None) -> float:
+    """The nominal table height (metres): a sensor calibration parameter, ``table_z_m`` of
+    :data:`REPRESENTATION_SENSOR` (``sensors/points.toml``)."""
+    z = workstation_representation(graph).table_z_m
+    assert z is not None  # checked by workstation_representation
+    return z
 
 
 @dataclass(frozen=True, eq=False)
@@ -274,7 +303,7 @@ def localize_object(
     t_proc = time.perf_counter()
     # 3. the snapshot's one low-level representation (shared with the description sensors)
     t = time.perf_counter()
-    rep = snap.representation(POINTS_SENSOR, WORKSTATION_REPRESENTATION)
+    rep = snap.representation(POINTS_SENSOR, workstation_representation(graph))
     rep.segmentation  # noqa: B018 - normals, curvature and regions, once
     timing["representation"] = time.perf_counter() - t
     points = rep.points
@@ -329,7 +358,7 @@ def find_table(points: FloatArray, rng: np.random.Generator) -> tuple[Plane | No
     table finder, :func:`mks_sim.localization.verify.find_table`)."""
     from mks_sim.localization.verify import find_table as _find
 
-    plane, thr, _ = _find(points, rng, spacing=0.0, noise=0.0, near_z=TABLE_Z_M)
+    plane, thr, _ = _find(points, rng, spacing=0.0, noise=0.0, near_z=table_z_m())
     return plane, thr
 
 

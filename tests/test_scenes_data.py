@@ -15,7 +15,7 @@ from mks_sim.sim.world import build_world
 
 def test_shipped_scene_files() -> None:
     assert {"scene1", "scene2", "part"} <= set(scene_names())
-    for name in names.SCENES:
+    for name in ("scene1", "scene2", "part"):
         spec = build_scene(name)
         assert spec.source is not None and spec.source.name == f"{name}.toml"
     assert build_scene("scene2").models == {"cube": "cube", "sphere": "sphere"}
@@ -93,3 +93,40 @@ def test_export_loads_in_mujoco(tmp_path) -> None:
     # the exported part carries the database density (1200 kg/m^3) on its exact mesh volume
     part = load_object("part")
     assert m.body_mass[m.body("part").id] == pytest.approx(1200.0 * part.mesh.volume, rel=0.02)
+
+
+def test_object_scene_comes_from_the_task_file(tmp_path) -> None:
+    """The scene of an object is its task file's ``scene`` (no table in code); an object
+    without a task file gets the default scene (None: the object alone, dropped)."""
+    from mks_sim.tasks.spec import default_task, object_scene
+
+    assert object_scene("cube") == "scene2" and object_scene("part") == "part"
+    (tmp_path / "grasp_cube.toml").write_text(
+        '[[task]]\nname = "grasp_cube"\nscene = "part"\nobject = "cube"\nmodel = "cube_5cm"\n'
+        '[task.action]\nkind = "grasp"\n',
+        encoding="utf-8",
+    )
+    assert object_scene("cube", tmp_path) == "part"
+    assert object_scene("cube", tmp_path / "empty") is None
+    assert default_task("cube").scene.endswith("default_cube.toml")
+
+
+def test_table_height_is_a_sensor_parameter(tmp_path) -> None:
+    """The nominal table height the localization flow uses is read from the sensor files
+    (``sensors/points.toml``), not a constant: edit the file, the flow's value follows."""
+    import shutil
+
+    from mks_sim.resources import data_dir
+    from mks_sim.sensing import SensorGraph
+    from mks_sim.workstation import table_z_m, workstation_representation
+
+    assert table_z_m() == pytest.approx(names.TABLE_TOP_Z)
+    for f in data_dir("sensors").glob("*.toml"):
+        shutil.copy(f, tmp_path / f.name)
+    pts = tmp_path / "points.toml"
+    text = pts.read_text(encoding="utf-8")
+    assert text.count("table_z_m = 0.75") >= 1
+    pts.write_text(text.replace("table_z_m = 0.75", "table_z_m = 0.8"), encoding="utf-8")
+    graph = SensorGraph.from_dir(tmp_path)
+    assert table_z_m(graph) == pytest.approx(0.8)
+    assert workstation_representation(graph).table_z_m == pytest.approx(0.8)

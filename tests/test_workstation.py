@@ -21,9 +21,9 @@ def _localize(obj: str, seed: int, fail: tuple[str, ...] = ()):  # noqa: ANN202
     from mks_sim.devices import DeviceFaults, make_devices
     from mks_sim.sim import truth
     from mks_sim.sim.world import build_world
-    from mks_sim.workstation import OBJECT_SCENES
+    from mks_sim.tasks.spec import object_scene
 
-    world = build_world(OBJECT_SCENES[obj], seed=seed)
+    world = build_world(object_scene(obj), seed=seed, objects=[obj])
     faults = {d: DeviceFaults(failed=True) for d in fail}
     with make_devices(world.model, world.data, np.random.default_rng(seed), faults) as devs:
         result = localize_object(world, obj, devs, rng=np.random.default_rng(seed))

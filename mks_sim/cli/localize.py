@@ -6,9 +6,9 @@ matching -> refinement) and prints the estimate, the ground truth and the error.
 truth (``mks_sim.sim.truth``) is read here, after localization, for evaluation only.
 
 Any object of the model database (``--models DIR`` adds folders) in any scene
-(``--scene NAME|FILE``); without ``--scene`` the first shipped scene holding the object
-(``worlds/*.toml``: scene2 for the cube and sphere, part for the part), else the object alone
-on the table, dropped from a random orientation.
+(``--scene NAME|FILE``); without ``--scene`` the scene of the object's task file
+(``tasks/grasp_<object>.toml``: scene2 for the cube and sphere, part for the part), else the
+object alone on the table, dropped from a random orientation.
 
 Example::
 
@@ -40,8 +40,8 @@ SUCCESS_DEG = 5.0
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--scene", default=None, metavar="NAME|FILE",
-        help="scene name (worlds/*.toml) or scene file (default: the first shipped scene "
-        "holding the object, else the object alone on the table, dropped)",
+        help="scene name (worlds/*.toml) or scene file (default: the scene of the object's "
+        "task file, else the object alone on the table, dropped)",
     )  # fmt: skip
     parser.add_argument(
         "--object", required=True, metavar="NAME", help="database object to localize"
@@ -77,15 +77,16 @@ def check_arguments(
     """
     from mks_sim.devices import DEVICE_NAMES
     from mks_sim.models.objects import load_object
-    from mks_sim.sim.scenes import scene_objects, scene_with_object
+    from mks_sim.sim.scenes import scene_objects
+    from mks_sim.tasks.spec import object_scene
 
     load_object(obj, models=models)  # NotFound lists the known objects
     if scene is None:
-        scene = scene_with_object(obj)
+        scene = object_scene(obj)
     else:
         held = scene_objects(scene)
         if obj not in held:
-            where = scene_with_object(obj)
+            where = object_scene(obj)
             raise SpecError(
                 f"--object {obj} is not in scene {scene!r} (it holds {held}); "
                 + (f"use --scene {where}" if where else "leave out --scene for the default scene")

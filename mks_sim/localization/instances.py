@@ -428,7 +428,7 @@ def localize_instances(
     """
     from mks_sim.errors import SensorFailure
     from mks_sim.localization.verify import find_table
-    from mks_sim.workstation import POINTS_SENSOR, TABLE_Z_M
+    from mks_sim.workstation import POINTS_SENSOR, table_z_m
 
     t0 = time.perf_counter()
     rng = np.random.default_rng(0) if rng is None else rng
@@ -447,7 +447,7 @@ def localize_instances(
     t_sense = time.perf_counter() - t0
     if len(pts) < 50:
         raise SensorFailure(POINTS_SENSOR, f"expected >= 50 points in the region, got {len(pts)}")
-    table, _, _ = find_table(pts, rng, spacing=0.0, noise=0.0, near_z=TABLE_Z_M)
+    table, _, _ = find_table(pts, rng, spacing=0.0, noise=0.0, near_z=table_z_m(graph))
     result = localize_all(model, pts, table=table, rng=rng, max_instances=max_instances)
     total = time.perf_counter() - t0
     return SensedInstances(

@@ -280,16 +280,31 @@ def task_for_object(obj: str, folder: str | Path | None = None) -> TaskSpec:
         return default_task(obj)
 
 
+def object_scene(obj: str, folder: str | Path | None = None) -> str | None:
+    """The scene object ``obj`` is localized and grasped in: the ``scene`` field of its task
+    (``grasp_<obj>`` in the task files), or None when it has no task file -- then the default
+    scene (the object alone on the table, dropped from a random orientation:
+    :func:`mks_sim.sim.scenes.default_scene`).
+
+    The one source of "which scene for this object" (``mks-sim localize`` without
+    ``--scene``, :func:`default_task`, the tests and benchmarks).
+    """
+    try:
+        return get_task(f"grasp_{obj}", folder).scene
+    except NotFound:
+        return None
+
+
 def default_task(obj: str) -> TaskSpec:
-    """Grasp database object ``obj`` with the default action, in the shipped scene named like
-    it or holding it, else in the default scene (the object alone on the table, dropped from
-    a random orientation: :func:`mks_sim.sim.scenes.default_scene_file`). Extra model
-    folders come from ``MKS_SIM_MODELS`` (``--models`` sets it)."""
+    """Grasp database object ``obj`` (one without a task file) with the default action in the
+    default scene (the object alone on the table, dropped from a random orientation:
+    :func:`mks_sim.sim.scenes.default_scene_file`). Extra model folders come from
+    ``MKS_SIM_MODELS`` (``--models`` sets it)."""
     from mks_sim.models.objects import load_object
-    from mks_sim.sim.scenes import default_scene_file, scene_with_object
+    from mks_sim.sim.scenes import default_scene_file
 
     o = load_object(obj)
-    scene = scene_with_object(obj) or str(default_scene_file([obj]))
+    scene = str(default_scene_file([obj]))
     model = next(iter(o.models.values()), obj)
     return TaskSpec(
         name=f"grasp_{obj}",

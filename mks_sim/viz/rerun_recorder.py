@@ -394,10 +394,11 @@ class RerunRecorder:
         """[(object points, SPG edges, segmentation)] from the snapshot's cached
         representation of ``Range_Points`` with the workstation's configuration (None when
         the snapshot or the engine offers none)."""
-        config = getattr(workstation, "WORKSTATION_REPRESENTATION", None)
-        if config is None or not hasattr(snap, "representation"):
+        config_of = getattr(workstation, "workstation_representation", None)
+        if config_of is None or not hasattr(snap, "representation"):
             return None
         try:
+            config = config_of()
             rep = snap.representation("Range_Points", config)
             cloud = np.asarray(rep.objects, dtype=float)
             if len(cloud) < 3:
