@@ -53,6 +53,7 @@ AcceptanceTest = Callable[[Stream, Mapping[str, Any]], "str | None"]
 _KERNEL = "mks_sim.sensing.programs.kernel"
 _VISION = "mks_sim.sensing.programs.vision"
 _POINTS = "mks_sim.sensing.programs.points"
+_VIEWS = "mks_sim.sensing.programs.views"
 
 #: Every built-in program: name -> "module:callable".
 PROGRAMS: Registry[Program] = Registry(
@@ -73,6 +74,7 @@ PROGRAMS: Registry[Program] = Registry(
         "control_point_detector": f"{_POINTS}:control_point_detector",
         "sphere_detector": f"{_POINTS}:sphere_detector",
         "touch_contacts": f"{_POINTS}:touch_contacts",
+        "fuse_views": f"{_VIEWS}:fuse_views",
     },
 )
 
