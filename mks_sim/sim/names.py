@@ -8,9 +8,6 @@ attached Jaco arm and hand carry dm_control's attachment prefix (``ROBOT_PREFIX`
 
 from __future__ import annotations
 
-# --- scenes ---------------------------------------------------------------------------------
-SCENES: tuple[str, ...] = ("scene1", "scene2", "part")
-
 # --- cameras (MuJoCo convention: the camera looks along its -z axis, +x right, +y up) -------
 OVERHEAD_CAMERA = "overhead_camera"  # straight down at the table, image up = world +y
 STEREO_LEFT = "stereo_left"  # rectified pair: same orientation, parallel optical axes

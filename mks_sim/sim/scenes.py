@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import os
 import tomllib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -320,10 +320,10 @@ def scene_file(name: str | Path) -> Path:
 
 
 def scene_names() -> list[str]:
-    """The scenes shipped in ``worlds/`` (and any registered in code), sorted."""
+    """The scenes shipped in ``worlds/`` (the scene list is the folder), sorted."""
     from mks_sim.resources import data_dir
 
-    return sorted({p.stem for p in data_dir("worlds").glob("*.toml")} | set(_SCENES))
+    return sorted(p.stem for p in data_dir("worlds").glob("*.toml"))
 
 
 def scene_objects(name: str | Path) -> list[str]:
@@ -334,17 +334,6 @@ def scene_objects(name: str | Path) -> list[str]:
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{path}: not valid TOML: {exc}") from exc
     return [str(e.get("name")) for e in doc.get("object", []) if isinstance(e, Mapping)]
-
-
-def scene_with_object(obj: str) -> str | None:
-    """The shipped scene for database object ``obj``: the scene named like it, else the one
-    holding it with the fewest objects (then by name); None when no scene lists it."""
-    held = [
-        (name != obj, len(objs), name)
-        for name in scene_names()
-        if name not in _SCENES and obj in (objs := scene_objects(name))
-    ]
-    return min(held)[2] if held else None
 
 
 def load_scene_file(
@@ -618,24 +607,13 @@ def default_scene_file(object_names: Sequence[str]) -> Path:
     return path
 
 
-_SCENES: dict[str, Callable[[], SceneSpec]] = {}
-
-
-def register_scene(name: str, builder: Callable[[], SceneSpec]) -> None:
-    """Register a scene builder in code under ``name`` (scene files are the usual way)."""
-    _SCENES[name] = builder
-
-
 def build_scene(name: str | Path, *, models: Sequence[str | Path] = ()) -> SceneSpec:
-    """Build the MJCF of scene ``name``: a registered builder, ``worlds/<name>.toml`` or a
-    scene file path.
+    """Build the MJCF of scene ``name``: ``worlds/<name>.toml`` or a scene file path.
 
     Raises:
         NotFound: unknown scene name (the message lists the known ones).
         SpecError: a malformed scene file.
     """
-    if isinstance(name, str) and name in _SCENES:
-        return _SCENES[name]()
     return load_scene_file(scene_file(name), models=models)
 
 
