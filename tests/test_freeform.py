@@ -235,3 +235,33 @@ def test_closed_form_triangle_fit_equals_kabsch() -> None:
     line[0, :, 0] = [0.0, 1.0, 2.0]  # collinear: falls back to the SVD
     r1, _ = _batched_rigid(line, line + 1.0)
     np.testing.assert_allclose(_triangle_rigid(line, line + 1.0)[0], r1)
+
+
+def test_ball_statistics_and_signed_normals_match_brute_force() -> None:
+    # The sparse-moment ball statistics must equal a per-query computation from scratch:
+    # the (at most k) nearest cloud points within the radius by a full distance sort, their
+    # mean and covariance eigenvalues; normals signed by the mean given normal of the ball.
+    from scipy.spatial import cKDTree
+
+    from mks_sim.geometry.keypoints import _ball_stats, pca_normals_signed
+
+    rng = np.random.default_rng(3)
+    cloud = rng.normal(size=(600, 3)) * [0.03, 0.02, 0.004]  # a noisy slab: anisotropic balls
+    cloud_n = np.tile([0.0, 0.0, 1.0], (600, 1)) + rng.normal(size=(600, 3)) * 0.1
+    queries = np.vstack([cloud[:40], [[1.0, 1.0, 1.0]]])  # the last ball is empty
+    radius, k = 0.012, 20
+    c, ev, _, cnt, _ = _ball_stats(cloud, cKDTree(cloud), queries, radius, k)
+    normals = pca_normals_signed(cloud, cloud_n, queries, radius, k)
+    for q in range(len(queries)):
+        d = np.linalg.norm(cloud - queries[q], axis=1)
+        nb = np.argsort(d)[:k]
+        nb = nb[d[nb] <= radius]
+        assert cnt[q] == len(nb)
+        if len(nb) == 0:
+            continue
+        np.testing.assert_allclose(c[q], cloud[nb].mean(axis=0), atol=1e-15)
+        cov = np.cov(cloud[nb].T, bias=True)
+        np.testing.assert_allclose(ev[q], np.linalg.eigvalsh(cov), atol=1e-14)
+        want = np.linalg.eigh(cov)[1][:, 0]
+        want *= 1.0 if want @ cloud_n[nb].sum(axis=0) >= 0 else -1.0
+        np.testing.assert_allclose(normals[q], want, atol=1e-8)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 __all__ = [
@@ -27,6 +28,7 @@ __all__ = [
     "estimate_normals_pca",
     "local_signatures",
     "nms_keypoints",
+    "pca_normals_signed",
     "voxel_downsample",
 ]
 
@@ -54,22 +56,45 @@ def voxel_downsample(points: FloatArray, spacing: float) -> NDArray[np.int64]:
     return np.sort(first).astype(np.int64)
 
 
-def _ball_stats(
-    cloud: FloatArray, tree: cKDTree, queries: FloatArray, radius: float
-) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int64]]:
-    """Centroid (Q, 3), eigenvalues ascending (Q, 3), eigenvectors (Q, 3, 3), counts (Q,)."""
-    d, j = tree.query(queries, k=min(_K, len(cloud)), distance_upper_bound=radius)
+def _ball_neighbours(
+    cloud: FloatArray, tree: cKDTree, queries: FloatArray, radius: float, k: int = _K
+) -> csr_matrix:
+    """(Q, N) 0/1 sparse matrix: row q marks the (at most ``k`` nearest) cloud points within
+    ``radius`` of query q."""
+    d, j = tree.query(queries, k=min(k, len(cloud)), distance_upper_bound=radius)
     if d.ndim == 1:
         d, j = d[:, None], j[:, None]
-    ok = np.isfinite(d)  # (Q, K)
-    cnt = ok.sum(axis=1)
-    nb = cloud[np.minimum(j, len(cloud) - 1)]  # (Q, K, 3)
-    w = ok[..., None].astype(np.float64)
-    c = (nb * w).sum(axis=1) / np.maximum(cnt, 1)[:, None]
-    x = (nb - c[:, None]) * w
-    cov = np.einsum("qki,qkj->qij", x, x) / np.maximum(cnt, 1)[:, None, None]
+    ok = np.isfinite(d)  # (Q, k), row-major: column indices grouped by row
+    indptr = np.zeros(len(queries) + 1, np.int64)
+    np.cumsum(ok.sum(axis=1), out=indptr[1:])
+    cols = j[ok]
+    return csr_matrix((np.ones(len(cols)), cols, indptr), shape=(len(queries), len(cloud)))
+
+
+def _ball_stats(
+    cloud: FloatArray, tree: cKDTree, queries: FloatArray, radius: float, k: int = _K
+) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.int64], csr_matrix]:
+    """Centroid (Q, 3), eigenvalues ascending (Q, 3), eigenvectors (Q, 3, 3), counts (Q,) and
+    the neighbour matrix of :func:`_ball_neighbours`.
+
+    The ball moments are one sparse product with the cloud's first and second moments (no
+    (Q, k, 3) gathers), taken about the cloud's mean so that the covariance
+    ``E[x x^T] - c c^T`` loses nothing at the object's scale.
+    """
+    nb = _ball_neighbours(cloud, tree, queries, radius, k)
+    cnt = np.diff(nb.indptr).astype(np.int64)
+    o = cloud.mean(axis=0) if len(cloud) else np.zeros(3)
+    x = cloud - o
+    iu, ju = np.triu_indices(3)
+    mom = np.concatenate([x, x[:, iu] * x[:, ju]], axis=1)  # (N, 9): x and the 6 products
+    s = nb @ mom / np.maximum(cnt, 1)[:, None]
+    c = s[:, :3]
+    cov = np.empty((len(queries), 3, 3))
+    cov[:, iu, ju] = s[:, 3:] - c[:, iu] * c[:, ju]
+    cov[:, ju, iu] = cov[:, iu, ju]
+    cov[cnt == 0] = 0.0
     evals, evecs = np.linalg.eigh(cov)
-    return c, np.clip(evals, 0.0, None), evecs, cnt
+    return c + o, np.clip(evals, 0.0, None), evecs, cnt, nb
 
 
 def estimate_normals_pca(
@@ -78,13 +103,30 @@ def estimate_normals_pca(
     """(N, 3) unit normals by PCA over balls of ``radius``, oriented towards ``viewpoint``
     (or, without one, away from the cloud's centroid)."""
     tree = cKDTree(points)
-    _, _, evecs, _ = _ball_stats(points, tree, points, radius)
+    _, _, evecs, _, _ = _ball_stats(points, tree, points, radius)
     n = evecs[:, :, 0]
     ref = points - (points.mean(axis=0) if viewpoint is None else viewpoint)
     sign = np.einsum("ij,ij->i", n, ref)
     if viewpoint is not None:
         sign = -sign
     return n * np.where(sign < 0, -1.0, 1.0)[:, None]
+
+
+def pca_normals_signed(
+    cloud: FloatArray,
+    cloud_normals: FloatArray,
+    queries: FloatArray,
+    radius: float,
+    k: int = 48,
+) -> FloatArray:
+    """(Q, 3) PCA normals over balls of ``radius`` (at most ``k`` nearest cloud points each),
+    signed to agree with the mean of the given (oriented) ``cloud_normals`` in each ball."""
+    tree = cKDTree(cloud)
+    _, _, evecs, _, nb = _ball_stats(cloud, tree, queries, radius, k)
+    n = evecs[:, :, 0]
+    mean_n = nb @ cloud_normals
+    sign = np.where(np.einsum("ij,ij->i", n, mean_n) < 0, -1.0, 1.0)
+    return n * sign[:, None]
 
 
 def local_signatures(
@@ -110,7 +152,7 @@ def local_signatures(
         if len(sub) == 0:
             continue
         tree = cKDTree(sub)
-        c, ev, _, cnt = _ball_stats(sub, tree, queries, r)
+        c, ev, _, cnt, _ = _ball_stats(sub, tree, queries, r)
         tot = ev.sum(axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
             var = ev[:, 0] / tot

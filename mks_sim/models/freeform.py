@@ -55,9 +55,11 @@ from mks_sim.geometry.keypoints import (
     estimate_normals_pca,
     local_signatures,
     nms_keypoints,
+    pca_normals_signed,
     voxel_downsample,
 )
 from mks_sim.geometry.meshes import Mesh, sample_surface
+from mks_sim.geometry.points import fibonacci_sphere
 from mks_sim.geometry.scan import scan_scene
 from mks_sim.models.pose import PoseHypothesis
 from mks_sim.models.refine import ModelSurface, VerifiedHypothesis, verify_hypotheses
@@ -144,13 +146,6 @@ class FreeformResult:
     keypoints: tuple[NDArray[np.int64], FloatArray, FloatArray] | None = field(
         default=None, repr=False, compare=False
     )
-
-
-def _fibonacci_sphere(n: int) -> FloatArray:
-    i = np.arange(n) + 0.5
-    phi = np.arccos(1 - 2 * i / n)
-    theta = np.pi * (1 + 5**0.5) * i
-    return np.stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi), np.cos(phi)], 1)
 
 
 def _triangle_rigid(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -280,7 +275,7 @@ class FreeformModel:
         # Views: a ring of cameras at 3 size around the centroid.
         centre = mesh.centroid
         views = []
-        for d in _fibonacci_sphere(cfg.n_views):
+        for d in fibonacci_sphere(cfg.n_views):
             up = (0.0, 0.0, 1.0) if abs(d[2]) < 0.95 else (1.0, 0.0, 0.0)
             res = scan_scene(
                 mesh,
@@ -332,7 +327,7 @@ class FreeformModel:
         assert cfg.spacing is not None
         cand = voxel_downsample(surf, cfg.model_point_spacing)
         mp = surf[cand]
-        mn = _pca_normals(surf, surf_n, mp, cfg.radii[0])
+        mn = pca_normals_signed(surf, surf_n, mp, cfg.radii[0])
         sig = np.full((len(mp), len(views), 6), np.nan)
         for v, cloud in enumerate(views):
             if len(cloud) < 10:
@@ -520,7 +515,7 @@ class FreeformModel:
         if scene_normals is None:
             n = estimate_normals_pca(p, cfg.radii[0])
         else:
-            n = _pca_normals(scene_points, scene_normals, p, cfg.radii[0])
+            n = pca_normals_signed(scene_points, scene_normals, p, cfg.radii[0])
         sig = local_signatures(scene_points, p, n, cfg.radii)
         assert cfg.saliency_floor is not None
         kp = nms_keypoints(p, _saliency(sig), cfg.keypoint_radius, cfg.saliency_floor)
@@ -691,27 +686,6 @@ def _saliency(sig: FloatArray) -> FloatArray:
     """Keypoint saliency: surface variation summed over the two scales (the small scale
     localises corners and rims, the large one finds the gentle bumps of smooth shapes)."""
     return sig[..., 0] + sig[..., 3]
-
-
-def _pca_normals(
-    cloud: FloatArray, cloud_normals: FloatArray, queries: FloatArray, radius: float
-) -> FloatArray:
-    """(Q, 3) PCA normals over balls of ``radius``, signed to agree with the mean of the
-    given (oriented) normals in each ball."""
-    tree = cKDTree(cloud)
-    d, j = tree.query(queries, k=min(48, len(cloud)), distance_upper_bound=radius)
-    ok = np.isfinite(d)
-    jj = np.minimum(j, len(cloud) - 1)
-    nb = cloud[jj]
-    w = ok[..., None].astype(np.float64)
-    cnt = np.maximum(ok.sum(axis=1), 1)[:, None]
-    c = (nb * w).sum(axis=1) / cnt
-    x = (nb - c[:, None]) * w
-    _, vec = np.linalg.eigh(np.einsum("qki,qkj->qij", x, x))
-    n = vec[:, :, 0]
-    mean_n = (cloud_normals[jj] * w).sum(axis=1)
-    sign = np.where(np.einsum("ij,ij->i", n, mean_n) < 0, -1.0, 1.0)
-    return n * sign[:, None]
 
 
 def _mean_rotation(r: FloatArray) -> FloatArray:
