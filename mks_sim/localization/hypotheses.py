@@ -221,8 +221,9 @@ def fit_fixed_sphere(
             u = diff / dist[:, None]
             r = dist - radius
             w = 1.0 / np.sqrt(1.0 + (r / f_scale) ** 2)
-            H = np.einsum("n,ni,nj->ij", w, u, u) + 1e-12 * np.eye(3)
-            delta = np.linalg.solve(H, np.einsum("n,ni->i", w * r, u))
+            wu = u * w[:, None]
+            H = wu.T @ u + 1e-12 * np.eye(3)
+            delta = np.linalg.solve(H, wu.T @ r)
             c = c + delta
             if float(np.linalg.norm(delta)) < 1e-7:
                 break

@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -168,6 +169,29 @@ class Consistency:
         return asdict(self)
 
 
+_MODEL_TREES: dict[int, tuple[Any, cKDTree]] = {}
+
+
+def _model_tree(surface_pts: FloatArray) -> cKDTree:
+    """The k-d tree of a model's surface samples (model frame), built once per sample array
+    (keyed by the array's identity, dropped when the array is freed)."""
+    key = id(surface_pts)
+    hit = _MODEL_TREES.get(key)
+    if hit is not None and hit[0]() is surface_pts:
+        return hit[1]
+    tree = cKDTree(surface_pts)
+
+    def _drop(_ref: Any) -> None:
+        _MODEL_TREES.pop(key, None)
+
+    try:
+        ref = weakref.ref(surface_pts, _drop)
+    except TypeError:  # not weak-referenceable (a view of a temporary): no cache
+        return tree
+    _MODEL_TREES[key] = (ref, tree)
+    return tree
+
+
 def consistency(
     T: FloatArray,
     surface_pts: FloatArray,
@@ -192,7 +216,7 @@ def consistency(
     # face resting on the table would otherwise "explain" the table under a wrong pose.
     seen = N[:, 2] > -0.3
     centre = P.mean(axis=0)
-    radius = float(np.max(np.linalg.norm(P - centre, axis=1)))
+    radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", P - centre, P - centre))))
     if cloud_tree is not None:
         near = cloud[cloud_tree.query_ball_point(centre, r=radius + 2 * d)]
     else:
@@ -202,26 +226,41 @@ def consistency(
     if table is not None:
         penetration = float(np.mean(table.distance(P) < -d))
     if len(near):
-        dist, idx = cKDTree(P).query(near)
-        dist_seen = cKDTree(P[seen]).query(near)[0] if seen.any() else np.full(len(near), np.inf)
-        explained = dist_seen <= d
-        sd = np.einsum("ij,ij->i", near - P[idx], N[idx])
-        sd[dist <= d] = 0.0  # on the surface (a visible or a resting face): not inside
+        # nearest model sample in the model frame: the model's tree is built once per model
+        model_tree = _model_tree(surface_pts)
+        q = (near - t) @ R
+        dist, idx = model_tree.query(q)
+        close = dist <= d
+        explained = close & seen[idx]
+        # a point whose nearest sample faces away may still have a seen one within d
+        amb = np.flatnonzero(close & ~seen[idx])
+        if len(amb):
+            balls = model_tree.query_ball_point(q[amb], r=d)
+            explained[amb] = [bool(seen[b].any()) for b in balls]
+        sd = np.einsum("ij,ij->i", q - surface_pts[idx], surface_nrm[idx])
+        sd[close] = 0.0  # on the surface (a visible or a resting face): not inside
         inside = (~explained) & (sd < -d)
         rest = np.flatnonzero(~explained & ~inside)
         below = np.zeros(len(near), dtype=bool)
         if len(rest):
-            tree2 = cKDTree(P[:, :2])
-            # radius d/2 and two model points: sensor noise along the silhouette edges
-            # (stereo) does not count, a point well inside the footprint does
-            counts = tree2.query_ball_point(near[rest, :2], r=0.5 * d, return_length=True)
-            rest = rest[np.asarray(counts) >= 2]  # only points under the model's footprint
-            if len(rest):
-                cols = tree2.query_ball_point(near[rest, :2], r=0.5 * d)
-                zq = near[rest, 2]
-                for j, c in enumerate(cols):
-                    if np.sort(P[c, 2])[-2] > zq[j] + 2 * d:
-                        below[rest[j]] = True
+            # under the model in its vertical column: at least two model samples within d/2
+            # in (x, y) lie more than 2d above the point (radius d/2 and two samples: sensor
+            # noise along the silhouette edges does not count, a point well inside the
+            # footprint does); samples below every such height cannot count
+            zq = near[rest, 2]
+            lo = near[rest, :2].min(axis=0) - 0.5 * d
+            hi = near[rest, :2].max(axis=0) + 0.5 * d
+            high = np.flatnonzero(
+                (P[:, 2] > zq.min() + 2 * d) & np.all((P[:, :2] >= lo) & (P[:, :2] <= hi), axis=1)
+            )
+            if len(high) >= 2:
+                cols = cKDTree(P[high, :2]).query_ball_point(near[rest, :2], r=0.5 * d)
+                lens = np.fromiter((len(c) for c in cols), dtype=np.intp, count=len(cols))
+                if lens.sum():
+                    flat = np.concatenate([c for c in cols if len(c)]).astype(np.intp)
+                    grp = np.repeat(np.arange(len(rest)), lens)
+                    above = P[high[flat], 2] > zq[grp] + 2 * d
+                    below[rest] = np.bincount(grp[above], minlength=len(rest)) >= 2
         explained_n, inside_n, below_n = int(explained.sum()), int(inside.sum()), int(below.sum())
     bad = inside_n + below_n
     ok = bool(explained_n >= 30 and bad <= 0.05 * max(explained_n, 1) and penetration <= 0.02)

@@ -13,6 +13,7 @@ one-sided scan is matched against the whole model without visibility reasoning.
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -70,10 +71,16 @@ class ModelSurface:
         d, _ = tree.query(p[:: max(1, len(p) // 500)], k=2)
         return cls(p, n, tree, float(np.median(d[:, 1])))
 
-    @property
+    @functools.cached_property
     def size(self) -> float:
         """Diagonal of the bounding box (the object's size, points' units)."""
         return float(np.linalg.norm(np.ptp(self.points, axis=0)))
+
+    @functools.cached_property
+    def offsets(self) -> FloatArray:
+        """(M,) ``points . normals``: the tangent-plane offset of each sample (ICP residuals
+        ``p . n - offset`` without gathering the points)."""
+        return np.asarray(np.einsum("ij,ij->i", self.points, self.normals), dtype=np.float64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,6 +114,9 @@ class VerifiedHypothesis:
     hypothesis: PoseHypothesis
     inlier_fraction: float
     equivalents: FloatArray
+
+
+_DIAG6 = np.diag_indices(6)
 
 
 def _rodrigues(omega: FloatArray) -> FloatArray:
@@ -154,23 +164,30 @@ def icp_point_to_plane(
         raise DataError(f"icp_point_to_plane: expected (4, 4) initial transform, got {T.shape}")
     scene_to_model = invert(T)
     size = max(surface.size, 1e-12)
+    normals, offsets = surface.normals, surface.offsets
+    A = np.empty((len(scene), 6))
     rmse, converged, it = np.inf, False, 0
     for it in range(1, max_iterations + 1):  # noqa: B007 - reported
         p = scene @ scene_to_model[:3, :3].T + scene_to_model[:3, 3]  # (N, 3) model frame
         dist, j = surface.tree.query(p, distance_upper_bound=max_distance)
-        ok = np.isfinite(dist)
-        if ok.sum() < 6:
+        ok = dist < np.inf
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok < 6:
             break
-        keep = np.flatnonzero(ok)
-        if trim < 1.0 and len(keep) > 10:
-            kth = int(trim * (len(keep) - 1))
-            cut = np.partition(dist[keep], kth)[kth]
-            keep = keep[dist[keep] <= cut]
-        p, q, n = p[keep], surface.points[j[keep]], surface.normals[j[keep]]
-        r = np.einsum("ij,ij->i", p - q, n)  # (K,)
-        A = np.hstack([np.cross(p, n), n])  # (K, 6)
-        H = A.T @ A + 1e-9 * np.eye(6)
-        x = np.linalg.solve(H, -A.T @ r)
+        if trim < 1.0 and n_ok > 10:
+            kth = int(trim * (n_ok - 1))
+            ok &= dist <= np.partition(dist[ok], kth)[kth]
+        p, jj = p[ok], j[ok]
+        n = normals[jj]
+        r = np.einsum("ij,ij->i", p, n) - offsets[jj]  # (K,) point-to-plane residuals
+        a = A[: len(p)]  # (K, 6): [p x n, n]
+        a[:, 0] = p[:, 1] * n[:, 2] - p[:, 2] * n[:, 1]
+        a[:, 1] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
+        a[:, 2] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
+        a[:, 3:] = n
+        H = a.T @ a
+        H[_DIAG6] += 1e-9
+        x = np.linalg.solve(H, -(a.T @ r))
         rmse = float(np.sqrt(np.mean(r**2)))
         dT = np.eye(4)
         dT[:3, :3] = _rodrigues(x[:3])
