@@ -257,7 +257,7 @@ def test_no_egl_tracebacks_at_exit_when_not_closed() -> None:
 def test_bad_arguments() -> None:
     from mks_sim.errors import MksError, NotFound
 
-    with pytest.raises(NotFound, match="unknown object 'pyramid'"):
+    with pytest.raises(NotFound, match="unknown object 'pyramid'; expected a model-database"):
         GraspEnv(object="pyramid")
     with pytest.raises(MksError, match="render_mode: expected None or 'rgb_array'"):
         GraspEnv(object="cube", render_mode="human")
@@ -268,3 +268,60 @@ def test_bad_arguments() -> None:
         GraspEnvV1(object="cube", image_size=(84,))
     with pytest.raises(MksError, match=r"render_size: expected \(width, height\) > 0"):
         GraspEnvV1(object="cube", render_size=(0, 10))
+
+
+@pytest.fixture(scope="module")
+def generated_models(tmp_path_factory: pytest.TempPathFactory):
+    """A wedge made by ``tests/_gen_meshes.py`` added to a fresh model folder, as
+    ``mks-sim objects add`` does (no task file, not in the built-in database)."""
+    from pathlib import Path
+
+    from mks_sim.models.importer import add_object
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    import _gen_meshes as gen
+
+    folder = tmp_path_factory.mktemp("env_models")
+    tm = gen.wedge()
+    tm.apply_scale(1000.0)
+    tm.export(folder / "wedge.stl")
+    add_object(folder / "wedge.stl", "wedge", folder / "models", units="mm")
+    return folder / "models"
+
+
+def test_unknown_object_lists_the_database(monkeypatch: pytest.MonkeyPatch) -> None:
+    from mks_sim.errors import NotFound
+
+    monkeypatch.delenv("MKS_SIM_MODELS", raising=False)
+    with pytest.raises(NotFound, match=r"unknown object 'wedge'.*cube.*part.*sphere"):
+        GraspEnvV1(object="wedge")
+    with pytest.raises(NotFound, match="expected a model folder"):
+        GraspEnvV1(object="cube", models=("/nonexistent/models",))
+
+
+@pytest.mark.slow
+def test_any_database_object_with_models_folder(
+    generated_models, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 10: an object added to a model folder is a task of the env (its default task:
+    alone on the table, dropped); the sensor-based estimate at reset is near the truth."""
+    from mks_sim.sim import truth
+
+    monkeypatch.delenv("MKS_SIM_MODELS", raising=False)  # restored after the test
+    env = gym.make("mks_sim/Grasp-v1", object="wedge", models=(str(generated_models),))
+    try:
+        u = env.unwrapped
+        assert u.object == "wedge" and u.task.object == "wedge"
+        obs, info = env.reset(seed=5)
+        assert obs["pose_valid"][0] == 1
+        err = info["localization_error"]
+        assert err["position_mm"] < 5.0 and err["rotation_deg"] < 5.0, err
+        # Independently of the env's own error bookkeeping: the estimate's position against
+        # the simulator's pose of the body (evaluation only).
+        T = truth.object_to_world(u.world, "wedge")
+        assert np.linalg.norm(obs["pose_estimate"][:3, 3] - T[:3, 3]) < 0.005
+        obs, *_ = env.step(np.zeros(5, np.float32))
+        assert np.isfinite(obs["arm_qpos"]).all()
+        assert pickle.loads(pickle.dumps(u)).object == "wedge"  # rebuilt with its models
+    finally:
+        env.close()

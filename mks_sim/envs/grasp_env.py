@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import atexit
 import math
+import os
 import time
 import weakref
 from collections.abc import Iterable
@@ -41,7 +42,6 @@ from mks_sim.sim import names
 from mks_sim.sim.ik import SiteIK
 from mks_sim.tasks.controller import ArmHandController, RobotNames, quat_down
 from mks_sim.tasks.episode import (
-    OBJECTS,
     EpisodeAssembly,
     LocalizeFn,
     sensor_localize_fn,
@@ -74,6 +74,17 @@ def _keep_exit_hook_last() -> None:
     atexit.register(_close_open_envs)
 
 
+def _use_models(models: tuple[str, ...]) -> None:
+    """Extra model folders into ``MKS_SIM_MODELS`` (as ``mks-sim grasp --models``): the task,
+    scene and localization look objects up there, in this process and in its workers."""
+    if not models:
+        return
+    from mks_sim.models.objects import MODELS_ENV, models_dirs
+
+    dirs = [str(d) for d in models_dirs(models)[1:]]  # NotFound for a missing folder
+    os.environ[MODELS_ENV] = os.pathsep.join(dirs)
+
+
 def _positive_size(value: Any, field: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in value)
@@ -85,11 +96,14 @@ def _positive_size(value: Any, field: str) -> tuple[int, int]:
 
 
 class GraspEnv(gym.Env):
-    """``mks_sim/Grasp-v0``: pick up ``object`` (``cube`` | ``sphere`` | ``part``) from the
-    workstation table; binary grip (``action[4] < 0`` opens at full speed, ``>= 0`` closes).
+    """``mks_sim/Grasp-v0``: pick up ``object`` from the workstation table; binary grip
+    (``action[4] < 0`` opens at full speed, ``>= 0`` closes).
 
     Args:
-        object: which grasp task (``tasks/grasp_<object>.toml``).
+        object: any object of the model database (``mks_sim.models.objects.object_names``):
+            its task file ``tasks/grasp_<object>.toml`` when there is one (``cube``,
+            ``sphere``, ``part``), else the default task (the object alone on the table,
+            dropped from a random orientation).
         render_mode: ``None`` or ``"rgb_array"``.
         faults: device names failed for every episode (e.g. ``("range_finder",)``).
         observe_image: add ``"image"``, the overhead camera RGB, (H, W, 3) uint8.
@@ -103,6 +117,14 @@ class GraspEnv(gym.Env):
         localize_fn: localization override (tests of the env API alone); default the
             sensor-based workstation pipeline.
         render_size: (width, height) of ``render()`` frames.
+        models: extra model-database folders, as the CLI's ``--models DIR``; like
+            ``mks-sim grasp --models`` they are put into ``MKS_SIM_MODELS`` (with the folders
+            already there), which the task, scene and localization read -- so vector-env
+            subprocesses see them too.
+
+    Raises:
+        NotFound: ``object`` is not in the model database (the message lists the known
+            names), or a ``models`` folder does not exist.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -122,9 +144,18 @@ class GraspEnv(gym.Env):
         resense_every: int = 0,
         localize_fn: LocalizeFn | None = None,
         render_size: tuple[int, int] = (160, 120),
+        models: Iterable[str | os.PathLike[str]] = (),
     ) -> None:
-        if object not in OBJECTS:
-            raise NotFound(f"unknown object {object!r}; expected one of {OBJECTS}")
+        model_dirs = tuple(str(p) for p in models)
+        _use_models(model_dirs)
+        from mks_sim.models.objects import object_names
+
+        known = object_names()
+        if object not in known:
+            raise NotFound(
+                f"unknown object {object!r}; expected a model-database name "
+                f"({', '.join(known)}) -- add one with `mks-sim objects add` and pass models=(DIR,)"
+            )
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise MksError(f"render_mode: expected None or 'rgb_array', got {render_mode!r}")
         image_size = _positive_size(image_size, "image_size")
@@ -136,7 +167,7 @@ class GraspEnv(gym.Env):
             observe_image=observe_image, observe_depth=observe_depth,
             observe_points=observe_points, image_size=tuple(image_size), n_points=n_points,
             max_episode_steps=max_episode_steps, resense_every=resense_every,
-            localize_fn=localize_fn, render_size=tuple(render_size),
+            localize_fn=localize_fn, render_size=tuple(render_size), models=model_dirs,
         )  # fmt: skip
         from mks_sim.sim.world import build_world
 
