@@ -116,17 +116,23 @@ def neighbour_table(
 
 def _ring_matrix(graph: GraphLike, rings: int) -> sparse.csr_array:
     """(N, N) 0/1 matrix whose row i marks i and its neighbourhood of ``rings`` SPG rings
-    (ring 1: i's own SPG row; more rings: undirected reachability, as :func:`neighbour_table`)."""
+    (ring 1: i's own SPG row; more rings: undirected reachability, as :func:`neighbour_table`).
+
+    More rings are powers of ``S + I`` (``S`` the symmetric 0/1 SPG): one sparse product per
+    extra ring, the pattern then reset to ones (no boolean round trips).
+    """
     adj = sparse.csr_array(graph.adjacency)
     n = adj.shape[0]
-    if rings > 1:
-        one = sparse.csr_array((adj + adj.T) > 0, dtype=np.float64)
-        reach = one.copy()
-        for _ in range(rings - 1):
-            reach = sparse.csr_array(((reach @ one) + reach) > 0, dtype=np.float64)
-        adj = reach
+    ones = sparse.csr_array((np.ones(adj.nnz), adj.indices, adj.indptr), shape=(n, n))
     eye = sparse.eye_array(n, format="csr", dtype=np.float64)
-    out = sparse.csr_array((sparse.csr_array(adj, dtype=np.float64) + eye) > 0, dtype=np.float64)
+    if rings > 1:
+        step = sparse.csr_array(ones + ones.T + eye)
+        out = step
+        for _ in range(rings - 1):
+            out = sparse.csr_array(out @ step)
+    else:
+        out = sparse.csr_array(ones + eye)
+    out.data[:] = 1.0  # every stored entry is a positive sum: the pattern is the neighbourhood
     return out
 
 

@@ -46,6 +46,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
+#: Points from which region growing uses the compiled kernel (when numba imports): below it
+#: the numpy loop is as fast and a fresh process pays no numba import.
+_COMPILED_MIN_POINTS = 500
 
 
 @dataclass(frozen=True, eq=False)
@@ -241,7 +244,14 @@ def fit_sphere(points: ArrayLike) -> SphereFit:
     def residual(x: FloatArray) -> FloatArray:
         return np.linalg.norm(pts - x[:3], axis=1) - x[3]
 
-    res = optimize.least_squares(residual, np.append(center0, np.sqrt(r2)), method="lm")
+    def jacobian(x: FloatArray) -> FloatArray:
+        d = pts - x[:3]
+        length = np.maximum(np.linalg.norm(d, axis=1), 1e-300)
+        return np.column_stack([-d / length[:, None], -np.ones(len(pts))])
+
+    res = optimize.least_squares(
+        residual, np.append(center0, np.sqrt(r2)), jac=jacobian, method="lm"
+    )
     center, radius = res.x[:3], abs(float(res.x[3]))
     rmse = float(np.sqrt(np.mean(residual(res.x) ** 2)))
     return SphereFit(center=center, radius=radius, rmse=rmse)
@@ -254,6 +264,80 @@ def _rows(adj: sparse.csr_array, frontier: IntArray) -> IntArray:
         return np.zeros(0, dtype=np.intp)
     pos = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(lengths.sum())
     return np.unique(adj.indices[pos])
+
+
+def _grow(
+    adj: sparse.csr_array,
+    points: FloatArray,
+    normals: FloatArray,
+    seeds_allowed: NDArray[np.bool_],
+    order: IntArray,
+    cos_tol: float,
+    distance: float,
+) -> tuple[IntArray, int]:
+    """Region labels in seed order and their count: the compiled kernel when numba imports
+    (:mod:`mks_sim.lowlevel._regions_kernels`), else :func:`_grow_numpy` (same regions)."""
+    from mks_sim.lowlevel import _gridknn
+
+    if len(points) >= _COMPILED_MIN_POINTS and _gridknn.available():
+        from mks_sim.lowlevel._regions_kernels import grow_regions
+
+        labels, count = grow_regions(
+            adj.indptr.astype(np.int64),
+            adj.indices.astype(np.int64),
+            np.ascontiguousarray(points, dtype=np.float64),
+            np.ascontiguousarray(normals, dtype=np.float64),
+            np.ascontiguousarray(seeds_allowed, dtype=np.bool_),
+            np.asarray(order, dtype=np.int64),
+            cos_tol,
+            distance,
+        )
+        return np.asarray(labels, dtype=np.intp), int(count)
+    return _grow_numpy(adj, points, normals, seeds_allowed, order, cos_tol, distance)
+
+
+def _grow_numpy(
+    adj: sparse.csr_array,
+    points: FloatArray,
+    normals: FloatArray,
+    seeds_allowed: NDArray[np.bool_],
+    order: IntArray,
+    cos_tol: float,
+    distance: float,
+) -> tuple[IntArray, int]:
+    """The region growing in numpy (one breadth-first level per step; the reference of the
+    compiled kernel): a seed's region takes, level by level, the unlabelled neighbours whose
+    normal is within ``cos_tol`` of the region's plane normal and which lie within
+    ``distance`` of the plane; the plane is refitted each time the region doubles."""
+    labels = np.full(len(points), -1, dtype=np.intp)
+    rid = 0
+    for seed in order:
+        if labels[seed] != -1 or not seeds_allowed[seed]:
+            continue
+        labels[seed] = rid
+        members = [np.array([seed])]
+        size, refit_at = 1, 8
+        normal, origin = normals[seed], points[seed]
+        frontier = np.array([seed])
+        while frontier.size:
+            cand = _rows(adj, frontier)
+            cand = cand[labels[cand] == -1]
+            if cand.size == 0:
+                break
+            ok = (np.abs(normals[cand] @ normal) >= cos_tol) & (
+                np.abs((points[cand] - origin) @ normal) <= distance
+            )
+            frontier = cand[ok]
+            labels[frontier] = rid
+            members.append(frontier)
+            size += frontier.size
+            if size >= refit_at:
+                allm = np.concatenate(members)
+                pl = fit_plane(points[allm], iterations=1)
+                normal, origin = pl.normal, points[allm].mean(axis=0)
+                refit_at = 2 * size
+        rid += 1
+    return labels, rid
 
 
 def grow_planar_regions(
@@ -279,43 +363,21 @@ def grow_planar_regions(
     adj = sparse.csr_array(graph.adjacency)
     adj = sparse.csr_array(adj + adj.T)
     n = len(points)
-    labels = np.full(n, -1, dtype=np.intp)
-    cos_tol = np.cos(np.radians(angle_deg))
-    members_list: list[IntArray] = []
-    for seed in order:
-        if labels[seed] != -1 or not seeds_allowed[seed]:
-            continue
-        rid = len(members_list)
-        labels[seed] = rid
-        members = [np.array([seed])]
-        size, refit_at = 1, 8
-        normal, origin = normals[seed], points[seed]
-        frontier = np.array([seed])
-        while frontier.size:
-            cand = _rows(adj, frontier)
-            cand = cand[labels[cand] == -1]
-            if cand.size == 0:
-                break
-            ok = (np.abs(normals[cand] @ normal) >= cos_tol) & (
-                np.abs((points[cand] - origin) @ normal) <= distance
-            )
-            frontier = cand[ok]
-            labels[frontier] = rid
-            members.append(frontier)
-            size += frontier.size
-            if size >= refit_at:
-                allm = np.concatenate(members)
-                pl = fit_plane(points[allm], iterations=1)
-                normal, origin = pl.normal, points[allm].mean(axis=0)
-                refit_at = 2 * size
-        members_list.append(np.concatenate(members))
+    cos_tol = float(np.cos(np.radians(angle_deg)))
+    grown, count = _grow(adj, points, normals, seeds_allowed, order, cos_tol, float(distance))
+    sizes = np.bincount(grown[grown >= 0], minlength=count)
+    by_region = np.argsort(grown, kind="stable")[n - int(sizes.sum()) :]  # drop the -1s
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    # regions largest first (ties in seed order), at least min_points
+    big = np.argsort(-sizes, kind="stable")
+    big = big[sizes[big] >= min_points]
+    members_list = [by_region[starts[r] : starts[r + 1]] for r in big]
     final = np.full(n, -1, dtype=np.intp)
-    big = [m for m in sorted(members_list, key=len, reverse=True) if len(m) >= min_points]
     planes = []
-    for rid, grown in enumerate(big):
-        final[grown] = rid
-        pl = fit_plane(points[grown])
-        planes.append(pl.flipped() if pl.normal @ normals[grown].mean(axis=0) < 0 else pl)
+    for rid, members in enumerate(members_list):
+        final[members] = rid
+        pl = fit_plane(points[members])
+        planes.append(pl.flipped() if pl.normal @ normals[members].mean(axis=0) < 0 else pl)
     _absorb_boundary(points, graph, final, planes, distance / 2)
     regions = []
     for rid, pl in enumerate(planes):

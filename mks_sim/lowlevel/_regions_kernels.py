@@ -1,0 +1,111 @@
+"""The compiled region growing of :func:`mks_sim.lowlevel.regions.grow_planar_regions`.
+
+Imported only when numba is used (``regions._grow`` falls back to the pure-numpy loop
+:func:`mks_sim.lowlevel.regions._grow_numpy`, which the tests compare it with). Module-level,
+``cache=True``: the first use on a machine compiles (seconds), later processes load it.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True)
+def grow_regions(
+    indptr: np.ndarray,
+    indices: np.ndarray,
+    points: np.ndarray,
+    normals: np.ndarray,
+    allowed: np.ndarray,
+    order: np.ndarray,
+    cos_tol: float,
+    distance: float,
+) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
+    """Breadth-first planar region growing from the seeds in ``order`` (see ``_grow_numpy``).
+
+    Returns:
+        ``(labels, count)``: (N,) region of each point in seed order (-1: none), regions.
+    """
+    n = points.shape[0]
+    labels = np.full(n, -1, np.int64)
+    members = np.empty(n, np.int64)
+    frontier = np.empty(n, np.int64)
+    nxt = np.empty(n, np.int64)
+    cand = np.empty(n, np.int64)
+    mark = np.zeros(n, np.bool_)
+    rid = 0
+    for s in order:
+        if labels[s] != -1 or not allowed[s]:
+            continue
+        labels[s] = rid
+        members[0] = s
+        size = 1
+        refit_at = 8
+        n0, n1, n2 = normals[s, 0], normals[s, 1], normals[s, 2]
+        o0, o1, o2 = points[s, 0], points[s, 1], points[s, 2]
+        frontier[0] = s
+        nf = 1
+        while nf > 0:
+            nc = 0
+            for f in range(nf):
+                p = frontier[f]
+                for e in range(indptr[p], indptr[p + 1]):
+                    q = indices[e]
+                    if labels[q] == -1 and not mark[q]:
+                        mark[q] = True
+                        cand[nc] = q
+                        nc += 1
+            if nc == 0:
+                break
+            sel = np.sort(cand[:nc])
+            nn = 0
+            for q in sel:
+                mark[q] = False
+                dn = abs(normals[q, 0] * n0 + normals[q, 1] * n1 + normals[q, 2] * n2)
+                dp = abs(
+                    (points[q, 0] - o0) * n0 + (points[q, 1] - o1) * n1 + (points[q, 2] - o2) * n2
+                )
+                if dn >= cos_tol and dp <= distance:
+                    labels[q] = rid
+                    nxt[nn] = q
+                    members[size + nn] = q
+                    nn += 1
+            size += nn
+            for f in range(nn):
+                frontier[f] = nxt[f]
+            nf = nn
+            if nn > 0 and size >= refit_at:
+                # the least-squares plane of the members: centroid, smallest principal axis
+                c0 = 0.0
+                c1 = 0.0
+                c2 = 0.0
+                for k in range(size):
+                    j = members[k]
+                    c0 += points[j, 0]
+                    c1 += points[j, 1]
+                    c2 += points[j, 2]
+                c0 /= size
+                c1 /= size
+                c2 /= size
+                cov = np.zeros((3, 3))
+                for k in range(size):
+                    j = members[k]
+                    d0 = points[j, 0] - c0
+                    d1 = points[j, 1] - c1
+                    d2 = points[j, 2] - c2
+                    cov[0, 0] += d0 * d0
+                    cov[0, 1] += d0 * d1
+                    cov[0, 2] += d0 * d2
+                    cov[1, 1] += d1 * d1
+                    cov[1, 2] += d1 * d2
+                    cov[2, 2] += d2 * d2
+                cov[1, 0] = cov[0, 1]
+                cov[2, 0] = cov[0, 2]
+                cov[2, 1] = cov[1, 2]
+                _, vec = np.linalg.eigh(cov)
+                n0, n1, n2 = vec[0, 0], vec[1, 0], vec[2, 0]
+                o0, o1, o2 = c0, c1, c2
+                refit_at = 2 * size
+        rid += 1
+    return labels, rid
