@@ -130,3 +130,54 @@ def test_table_height_is_a_sensor_parameter(tmp_path) -> None:
     graph = SensorGraph.from_dir(tmp_path)
     assert table_z_m(graph) == pytest.approx(0.8)
     assert workstation_representation(graph).table_z_m == pytest.approx(0.8)
+
+
+def test_flat_parts_are_scene_data(tmp_path) -> None:
+    """A [[flat_part]] scene of one's own: a hexagonal plate without a hole (a fan-capped
+    prism) and a washer on a tray, built from the file alone; the mesh is closed with the
+    extruded polygon's volume (area 2 sqrt 3 a^2 for apothem a)."""
+    from mks_sim.geometry.meshes import Mesh
+    from mks_sim.sim import flatparts
+
+    f = tmp_path / "plates.toml"
+    f.write_text(
+        '[scene]\nsupport = "tray"\n[tray]\nsize = [0.2, 0.15, 0.004]\n'
+        "[flat_parts]\nthickness_mm = 5\n"
+        '[[flat_part]]\nname = "hex"\nkind = "hex_plate"\nat_px = [30, -20]\ncorners = 6\n'
+        'shape = "polygon"\nsides = 6\napothem_mm = 15\n'
+        '[[flat_part]]\nname = "ring"\nkind = "washer"\nat_px = [-40, 0]\nholes = 1\n'
+        'shape = "disc"\nradius_mm = 12\nhole_radius_mm = 4\n',
+        encoding="utf-8",
+    )
+    spec = build_scene(str(f))
+    assert [p.name for p in spec.flat_parts] == ["hex", "ring"]
+    assert spec.support_z == pytest.approx(names.TABLE_TOP_Z + 0.008)
+    hexp = spec.flat_parts[0]
+    assert hexp.default_xy == pytest.approx((0.030, 0.020))  # 1 mm per pixel, v downwards
+    mesh = Mesh(*flatparts.prism(hexp.outline(), hexp.thickness_m))
+    assert mesh.is_watertight()
+    assert mesh.volume == pytest.approx(2 * np.sqrt(3) * 0.015**2 * 0.005, rel=1e-6)
+    w = build_world(str(f))
+    assert truth.object_to_world(w, "hex")[2, 3] == pytest.approx(spec.support_z + 0.0025, abs=1e-3)
+    rows = {r.name: r for r in truth.scene1_manifest(w)}
+    assert rows["ring"].holes == 1 and rows["ring"].uv_paper == pytest.approx((-40, 0), abs=1)
+
+
+@pytest.mark.parametrize(
+    ("entry", "match"),
+    [
+        ('shape = "oval"\nradius_mm = 3\n', "field 'shape'"),
+        ('shape = "disc"\n', "field 'radius_mm'"),
+        ('shape = "polygon"\nsides = 5\napothem_mm = 9\n', "field 'sides'.*divisor"),
+        ('shape = "disc"\nradius_mm = 5\nhole_radius_mm = 6\n', "hole inside the outline"),
+        ('shape = "boxes"\nboxes_mm = [[0, 0, 1]]\n', "field 'boxes_mm'"),
+        ('shape = "disc"\nradius_mm = 5\ncolour = 1\n', "unknown field.*colour"),
+    ],
+)
+def test_bad_flat_parts(tmp_path, entry: str, match: str) -> None:
+    f = tmp_path / "bad.toml"
+    f.write_text(
+        f'[[flat_part]]\nname = "p"\nkind = "plate"\nat_px = [0, 0]\n{entry}', encoding="utf-8"
+    )
+    with pytest.raises(SpecError, match=match):
+        build_scene(str(f))

@@ -9,7 +9,11 @@ import pytest
 from mks_sim.errors import NotFound
 from mks_sim.sim import flatparts, names, truth
 from mks_sim.sim.robot import arm_qpos_for_pinch
+from mks_sim.sim.scenes import build_scene
 from mks_sim.sim.world import World, build_world
+
+FLAT_PARTS = build_scene("scene1").flat_parts  # worlds/scene1.toml's [[flat_part]] entries
+TRAY_TOP_Z = names.TABLE_TOP_Z + 0.006  # the table + the 6 mm tray (scene1.toml [tray])
 
 # Resting height of each body origin above its support when at rest (from the object
 # definitions: half the cube edge, cube edge + sphere radius, the part's origin is its
@@ -18,7 +22,7 @@ RESTING = {
     names.CUBE: names.TABLE_TOP_Z + names.CUBE_SIZE_M / 2,
     names.SPHERE: names.TABLE_TOP_Z + names.CUBE_SIZE_M + names.SPHERE_RADIUS_M,
     names.PART: names.TABLE_TOP_Z,
-    **{p.name: flatparts.TRAY_TOP_Z + flatparts.THICKNESS_M / 2 for p in flatparts.CATALOGUE},
+    **{p.name: TRAY_TOP_Z + 0.004 / 2 for p in FLAT_PARTS},  # 4 mm parts
 }
 
 
@@ -41,7 +45,7 @@ def test_scene_names(world: World) -> None:
     for site in names.RANGE_FINDER_MOUNTS:
         assert m.site(site).id >= 0
     expected = {
-        "scene1": {p.name for p in flatparts.CATALOGUE},
+        "scene1": {f"flat_{i:02d}" for i in range(1, 13)},
         "scene2": {names.CUBE, names.SPHERE, *names.CLUTTER},
         "part": {names.PART},
     }[world.name]
@@ -149,12 +153,12 @@ def test_scene1_default_layout_matches_paper_tables() -> None:
 def test_flat_part_meshes_are_closed() -> None:
     from mks_sim.geometry.meshes import Mesh
 
-    for part in flatparts.CATALOGUE:
+    for part in FLAT_PARTS:
         if part.holes:
-            v, f = flatparts.annular_prism(flatparts._outline(part), part.hole_radius_m, 0.004)
+            v, f = flatparts.annular_prism(part.outline(), part.hole_radius_m, 0.004)
             mesh = Mesh(v, f)
             assert mesh.is_watertight(), part.name
-            outer = flatparts._outline(part)
+            outer = part.outline()
             x, y = outer[:, 0], outer[:, 1]
             area = 0.5 * abs(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1)))
             expected = 0.004 * (area - np.pi * part.hole_radius_m**2 * 0.997)
@@ -254,9 +258,9 @@ def _render(world: World, camera: str) -> np.ndarray:
 def test_overhead_render_shows_dark_parts_on_light_tray() -> None:
     w = build_world("scene1")
     img = _render(w, names.OVERHEAD_CAMERA).astype(float).mean(axis=2)  # (240, 320)
-    depth = names.TABLE_TOP_Z + 0.8 - (flatparts.TRAY_TOP_Z + flatparts.THICKNESS_M)
+    depth = names.TABLE_TOP_Z + 0.8 - (TRAY_TOP_Z + 0.004)
     f = 120 / np.tan(np.radians(16))
-    for part in flatparts.CATALOGUE:
+    for part in FLAT_PARTS:
         x, y = part.default_xy
         u, v = 160 + f * x / depth, 120 - f * y / depth
         if part.kind in ("disc", "square_plate"):

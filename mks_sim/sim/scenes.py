@@ -29,7 +29,7 @@ import numpy as np
 from dm_control import mjcf
 
 from mks_sim.errors import NotFound, SpecError
-from mks_sim.sim import names, objects
+from mks_sim.sim import flatparts, names, objects
 from mks_sim.sim.robot import Robot, add_robot
 
 TABLE_HALF = (0.45, 0.7, 0.02)  # m; the table centre is at y = 0.2 so the arm base fits
@@ -82,6 +82,8 @@ class SceneSpec:
         placements: body -> how ``World.randomize`` places it (bodies not listed: upright
             anywhere in the region with a uniform yaw).
         source: the scene file (None for scenes built in code).
+        flat_parts: the ``[[flat_part]]`` entries (what each flat part is: evaluation's
+            scene list, :func:`mks_sim.sim.truth.scene1_manifest`).
     """
 
     name: str
@@ -94,6 +96,7 @@ class SceneSpec:
     support_z: float = names.TABLE_TOP_Z
     placements: Mapping[str, Placement] = field(default_factory=dict)
     source: Path | None = None
+    flat_parts: tuple[flatparts.FlatPart, ...] = ()
 
     @property
     def models(self) -> dict[str, str]:
@@ -248,12 +251,14 @@ def _add_sensor_mounts(root: mjcf.RootElement, centre: np.ndarray) -> None:
 
 # --------------------------------------------------------------------------- scene files
 
-_SCENE_KEYS = {"name", "description", "region", "support", "flat_parts"}
+_SCENE_KEYS = {"name", "description", "region", "support"}
 _OBJECT_KEYS = {"name", "count", "at", "yaw_deg", "pose", "x", "y", "yaw", "on", "gap_m"}
 _FIXTURE_KEYS = {"size", "at", "z", "rgb"}
 _CLUTTER_KEYS = {"shape", "size", "at", "rgb", "dots"}
 _LIGHT_KEYS = {"name", "pos", "dir", "diffuse", "directional"}
-_TOP_KEYS = {"scene", "table", "object", "clutter", "light", "fixture"}
+_TOP_KEYS = {
+    "scene", "table", "object", "clutter", "light", "fixture", "tray", "flat_parts", "flat_part"
+}  # fmt: skip
 
 
 def _pair(v: Any, where: str, key: str) -> tuple[float, float]:
@@ -407,19 +412,15 @@ def scene_from_doc(
     support_z = names.TABLE_TOP_Z
     specs: list[objects.ObjectSpec] = []
     if support == "tray":
-        from mks_sim.sim import flatparts
-
-        flatparts.add_tray(root)
-        support_z = flatparts.TRAY_TOP_Z
+        tray_half, tray_rgba = flatparts.parse_tray(doc, str(path))
+        support_z = flatparts.add_tray(root, tray_half, tray_rgba)
         margin = 0.01
         region_c = (0.0, 0.0)
-        region_h = (flatparts.TRAY_HALF[0] - margin, flatparts.TRAY_HALF[1] - margin)
-        if head.get("flat_parts") == "paper":
-            specs += [flatparts.add_flat_part(root, part) for part in flatparts.CATALOGUE]
-        elif "flat_parts" in head:
-            raise SpecError(
-                f"{path}: [scene]: field 'flat_parts': expected 'paper', got {head['flat_parts']!r}"
-            )
+        region_h = (tray_half[0] - margin, tray_half[1] - margin)
+    elif "tray" in doc:
+        raise SpecError(f"{path}: [tray]: expected [scene] support = 'tray' with it, got {support!r}")  # fmt: skip
+    flat_parts = flatparts.parse_flat_parts(doc, str(path))
+    specs += [flatparts.add_flat_part(root, part, support_z) for part in flat_parts]
     if "region" in head:
         reg = head["region"]
         _unknown(reg, {"center", "half"}, f"{path}: [scene] region")
@@ -502,7 +503,7 @@ def scene_from_doc(
         root.find("body", spec.name).pos = (xy[0], xy[1], support_z + spec.rest_height_m)
     if not specs:
         raise SpecError(
-            f"{path}: expected at least one [[object]], [[clutter]] or flat_parts, got none"
+            f"{path}: expected at least one [[object]], [[clutter]] or [[flat_part]], got none"
         )
     return SceneSpec(
         name=scene_name,
@@ -515,6 +516,7 @@ def scene_from_doc(
         support_z=support_z,
         placements=placements,
         source=path if path.is_file() else None,
+        flat_parts=flat_parts,
     )
 
 

@@ -53,11 +53,12 @@ class FlatPartTruth:
 
     Attributes:
         name: body name.
-        kind: part kind (``mks_sim.sim.flatparts.CATALOGUE``).
+        kind: part kind (the scene file's ``[[flat_part]]`` entry).
         xy_world: (x, y) of the centroid, metres, world frame.
         yaw_rad: rotation about world z.
-        uv_paper: the centroid in the paper's pixel units (1 px = 1 mm on the tray,
-            u = 256 + x/mm, v = 256 - y/mm) -- comparable with Tables 4-1 / 4-3.
+        uv_paper: the centroid in the paper's pixel units (the scene file's mapping; scene 1:
+            1 px = 1 mm on the tray, u = 256 + x/mm, v = 256 - y/mm) -- comparable with
+            Tables 4-1 / 4-3.
         corners, holes: silhouette corners and holes.
         radius_m: outer radius of round parts (disc, washer), else 0.
         hole_radius_m: hole radius, else 0.
@@ -77,17 +78,20 @@ class FlatPartTruth:
 
 
 def scene1_manifest(world: World) -> list[FlatPartTruth]:
-    """What is where in scene 1, from the current body poses (evaluation only).
+    """What is where among the flat parts of a scene (scene 1's ``[[flat_part]]`` entries),
+    from the current body poses (evaluation only).
 
     Raises:
-        NotFound: the world is not scene 1.
+        NotFound: the world has no flat parts.
     """
-    from mks_sim.sim import flatparts
-
-    if world.name != "scene1":
-        raise NotFound(f"scene1_manifest: expected world 'scene1', got {world.name!r}")
+    parts = getattr(world.scene, "flat_parts", ())
+    if not parts:
+        raise NotFound(
+            f"scene1_manifest: expected world 'scene1' (a scene with [[flat_part]] entries), "
+            f"got {world.name!r}"
+        )
     out = []
-    for part in flatparts.CATALOGUE:
+    for part in parts:
         T = object_to_world(world, part.name)
         x, y = float(T[0, 3]), float(T[1, 3])
         out.append(
@@ -96,7 +100,7 @@ def scene1_manifest(world: World) -> list[FlatPartTruth]:
                 kind=part.kind,
                 xy_world=(x, y),
                 yaw_rad=float(np.arctan2(T[1, 0], T[0, 0])),
-                uv_paper=(256.0 + x * 1000.0, 256.0 - y * 1000.0),
+                uv_paper=part.uv(x, y),
                 corners=part.corners,
                 holes=part.holes,
                 radius_m=part.radius_m,
