@@ -34,4 +34,4 @@ def test_a_three_part_bin_is_cleared():
     assert rec["present"] == 3
     assert rec["picked"] == 3 and rec["cleared_fraction"] == 1.0, rec
     assert rec["stopped"] == "nothing found"  # the robot saw the bin empty
-    assert all(p["views"] == 1 and p["time_s"] >= p["perception_s"] for p in rec["picks"])
+    assert all(p["views"] >= 1 and p["time_s"] >= p["perception_s"] for p in rec["picks"])

@@ -130,7 +130,9 @@ def test_sim_bin_of_three_parts_localized(capsys):
     for inst in rec["instances"]:
         assert inst["error"]["position_mm"] < 5.0 and inst["error"]["rotation_deg"] < 5.0
         assert 0.0 < inst["visible_fraction"] <= 1.0
-    assert rec["provenance"]["Range_Points"] == "primary"
+    # the views' fused sensor, served by the range finder alone (one view: its scan)
+    assert rec["provenance"]["Fused_Points"] == "primary"
+    assert rec["view_names"][0] == "range_finder#0" and rec["views"] == len(rec["view_names"])
 
 
 def test_cli_all_bad_input():

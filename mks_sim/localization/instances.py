@@ -375,6 +375,8 @@ class SensedInstances:
             planner (walls and neighbours included).
         provenance: logical sensor -> the way that served it.
         timing: seconds (``sensing``, ``localization``, ``total``).
+        views: the views the points came from, in order (``range_finder#0``,
+            ``wrist_camera#1``: the fused sensor's stream sources), or the one sensor's way.
     """
 
     instances: Instances
@@ -382,6 +384,7 @@ class SensedInstances:
     scene_points: FloatArray = field(repr=False)
     provenance: dict[str, str]
     timing: dict[str, float]
+    views: tuple[str, ...] = ()
 
 
 _MODELS: dict[tuple[str, tuple[str, ...]], Any] = {}
@@ -408,12 +411,15 @@ def localize_instances(
     rng: np.random.Generator | None = None,
     models: tuple[str, ...] = (),
     max_instances: int = 12,
+    sensor: str | None = None,
 ) -> SensedInstances:
     """Sense the scene once and localize every instance of a database object.
 
     Args:
         devices: device name -> device (``mks_sim.devices.make_devices``); a failed range
-            finder is replaced by the points sensor's alternate (stereo).
+            finder is replaced by the points sensor's alternate (stereo). With
+            ``sensor="Fused_Points"``, views held by
+            :class:`~mks_sim.sensing.programs.views.HeldViews` (active sensing).
         object_name: a database object (its mesh is the model).
         roi: (lo, hi) world-frame corners of the region of interest (e.g. a bin's inside:
             a workcell calibration, like the table height); points outside are ignored.
@@ -421,6 +427,8 @@ def localize_instances(
         rng: generator (default seeded 0).
         models: extra model folders.
         max_instances: stop after this many.
+        sensor: the logical sensor of 3-D points (default the workstation's
+            ``Range_Points``).
 
     Raises:
         NotFound: unknown object.
@@ -437,8 +445,14 @@ def localize_instances(
         from mks_sim.workstation import _default_graph
 
         graph = _default_graph()
+    sensor = POINTS_SENSOR if sensor is None else sensor
     snap = graph.snapshot(devices)
-    pts = np.asarray(snap.get(POINTS_SENSOR).data, dtype=np.float64)[:, :3]
+    stream = snap.get(sensor)
+    pts = np.asarray(stream.data, dtype=np.float64)[:, :3]
+    if stream.source is not None:
+        views = tuple(dict.fromkeys(str(v) for v in stream.source))
+    else:
+        views = (f"{sensor}:{stream.served_by}",)
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     scene = pts
     if roi is not None:
@@ -446,7 +460,7 @@ def localize_instances(
         pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
     t_sense = time.perf_counter() - t0
     if len(pts) < 50:
-        raise SensorFailure(POINTS_SENSOR, f"expected >= 50 points in the region, got {len(pts)}")
+        raise SensorFailure(sensor, f"expected >= 50 points in the region, got {len(pts)}")
     table, _, _ = find_table(pts, rng, spacing=0.0, noise=0.0, near_z=table_z_m(graph))
     result = localize_all(model, pts, table=table, rng=rng, max_instances=max_instances)
     total = time.perf_counter() - t0
@@ -456,4 +470,5 @@ def localize_instances(
         scene,
         dict(snap.provenance),
         {"sensing": t_sense, "localization": total - t_sense, "total": total},
+        views,
     )

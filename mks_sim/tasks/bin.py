@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from mks_sim.errors import SpecError
@@ -126,7 +127,12 @@ def visible_fraction(mesh_points: np.ndarray, T: np.ndarray, sensed: np.ndarray)
 
 
 def evaluate_instances(
-    world: World, object_name: str, found: Sequence[np.ndarray], sensed: np.ndarray
+    world: World,
+    object_name: str,
+    found: Sequence[np.ndarray],
+    sensed: np.ndarray,
+    *,
+    models: Sequence[str | Path] = (),
 ) -> dict[str, Any]:
     """Match found poses to the true instances -- EVALUATION ONLY (ground truth).
 
@@ -144,7 +150,7 @@ def evaluate_instances(
     from mks_sim.sim import truth
     from mks_sim.tasks.evaluate import object_pose_error
 
-    obj = load_object(object_name)
+    obj = load_object(object_name, models=tuple(str(m) for m in models))
     bodies = [b for b, m in world.scene.models.items() if m == object_name]
     true = {b: truth.object_to_world(world, b) for b in bodies}
     samples = _surface_samples(obj)
@@ -210,32 +216,38 @@ def run_localize_all(
     count: int | None = None,
     fail: Sequence[str] = (),
     scene: str | Path = BIN_SCENE,
+    active: bool = True,
+    models: Sequence[str | Path] = (),
 ) -> dict[str, Any]:
-    """Build the bin from ``seed``, sense once, localize every instance and evaluate: the
-    record of ``mks-sim localize --scene bin --all``.
+    """Build the bin from ``seed``, sense (more views when the first is not good enough:
+    :meth:`BinPicker.sense`), localize every instance and evaluate: the record of
+    ``mks-sim localize --scene bin --all``.
 
     Returns:
         ``{"scene", "object", "seed", "instances": [{"matrix", "score", "visible_fraction",
         "error": {"position_mm", "rotation_deg"}, "correct"}], "found", "present",
-        "false_positives", "missed", "provenance", "time_s", "timing_s", "failed_devices"}``
+        "false_positives", "missed", "provenance", "views", "view_names", "view_log",
+        "faults", "time_s", "timing_s", "failed_devices"}``
         (``error``, ``visible_fraction``, ``correct``, ``present``, ``false_positives`` and
         ``missed`` are evaluation from ground truth).
     """
     from mks_sim.devices import DeviceFaults, make_devices
-    from mks_sim.localization.instances import localize_instances
 
-    world = bin_world(seed, count=count, object=object_name, scene=scene)
+    world = bin_world(seed, count=count, object=object_name, scene=scene, models=models)
     name = object_name or next(iter(world.scene.models.values()))
     faults = {dev: DeviceFaults(failed=True) for dev in fail}
     devices = make_devices(world.model, world.data, np.random.default_rng(seed), faults)
     try:
-        sensed = localize_instances(
-            devices, name, roi=bin_roi(world), rng=np.random.default_rng(seed)
-        )
+        robot = BinPicker(
+            world, devices, object_name=name, rng=np.random.default_rng(seed), active=active,
+            models=models,
+        )  # fmt: skip
+        robot.sense()
+        sensed = robot.sensed
     finally:
         devices.close()
     found = [i.matrix for i in sensed.instances.instances]
-    ev = evaluate_instances(world, name, found, sensed.points)
+    ev = evaluate_instances(world, name, found, sensed.points, models=models)
     instances = []
     for inst, err, m in zip(sensed.instances.instances, ev["errors"], ev["matched"], strict=True):
         instances.append(
@@ -258,8 +270,13 @@ def run_localize_all(
         "false_positives": ev["false_positives"],
         "missed": ev["missed"],
         "provenance": sensed.provenance,
-        "time_s": round(sensed.timing["total"], 4),
-        "timing_s": {k: round(v, 4) for k, v in sensed.timing.items()},
+        "views": robot.views,
+        "view_names": list(sensed.views),
+        "view_log": robot.view_log,
+        "faults": robot.faults,
+        "time_s": round(robot.perception_s, 4),
+        "timing_s": {**{k: round(v, 4) for k, v in sensed.timing.items()},
+                     "total": round(robot.perception_s, 4)},
         "failed_devices": list(fail),
     }
 
@@ -295,6 +312,8 @@ class Pick:
         views: sensing views used for the pick.
         score: the picked instance's localization score.
         body: the body it was (evaluation: the true instance nearest the estimate).
+        tilt_deg: how far the grasp's approach was from straight down (0: top-down; a part
+            on its side or upside down is grasped tilted).
     """
 
     instance: int
@@ -306,6 +325,7 @@ class Pick:
     views: int
     score: float
     body: str | None
+    tilt_deg: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         """The CLI's record of the pick."""
@@ -319,6 +339,7 @@ class Pick:
             "views": self.views,
             "score": round(self.score, 4),
             "body": self.body,
+            "tilt_deg": round(self.tilt_deg, 1),
         }
 
 
@@ -348,6 +369,23 @@ def _nearest_body(world: World, bodies: Sequence[str], T: np.ndarray) -> str | N
 
 PlanPerturbation = Callable[[int, Any], Any]
 
+#: The logical sensor that fuses the views (``sensors/views.toml``).
+VIEWS_SENSOR = "Fused_Points"
+
+
+def _views_graph() -> Any:
+    from mks_sim.workstation import _default_graph
+
+    return _default_graph()
+
+
+def _view_params(graph: Any) -> Any:
+    """The fused sensor's params (its next-view data) as ``FuseParams``."""
+    from mks_sim.sensing.programs.views import FuseParams
+    from mks_sim.sensing.registry import params_of
+
+    return params_of(FuseParams, graph.sensor(VIEWS_SENSOR).params, "fuse_views")
+
 
 class BinPicker:
     """The robot side of bin picking: sense all instances, plan a grasp, pick into the box.
@@ -361,6 +399,9 @@ class BinPicker:
         devices: the devices (``make_devices``; failed ones are served by alternates).
         object_name: the database object in the bin (default the scene's).
         rng: grasp sampling and localization.
+        active: take more views when the first is not good enough (:meth:`sense`).
+        graph: the logical sensors (default ``SensorGraph.from_dir()``: ``Fused_Points``).
+        models: extra model folders (``--models``).
     """
 
     def __init__(
@@ -370,6 +411,9 @@ class BinPicker:
         *,
         object_name: str | None = None,
         rng: np.random.Generator | None = None,
+        active: bool = True,
+        graph: Any = None,
+        models: Sequence[str | Path] = (),
     ) -> None:
         from mks_sim.models.objects import load_object
         from mks_sim.sim import names
@@ -381,7 +425,7 @@ class BinPicker:
         self.devices = devices
         self.rng = np.random.default_rng(0) if rng is None else rng
         self.name = object_name or next(iter(world.scene.models.values()))
-        self.obj = load_object(self.name)
+        self.obj = load_object(self.name, models=tuple(str(m) for m in models))
         self.action = task_for_object(self.name).action
         self.bodies = [b for b, m in world.scene.models.items() if m == self.name]
         self.ctl = ArmHandController(
@@ -392,20 +436,179 @@ class BinPicker:
         self.roi = bin_roi(world)
         self.radius = float(np.max(np.linalg.norm(self.obj.mesh.vertices, axis=1)))
         self.sensed: Any = None
+        self.last_tilt_deg = 0.0  # the last pick's approach from straight down (degrees)
         self.perception_s = 0.0
+        self.models = tuple(str(m) for m in models)
+        # active sensing (sensors/views.toml: the fused sensor and its next-view data)
+        self.graph = graph if graph is not None else _views_graph()
+        self.view = _view_params(self.graph)
+        self.active = active
+        self.views = 0
+        self.view_log: list[dict[str, Any]] = []
+        self.faults: dict[str, str] = {}  # devices that failed in the last sensing
+        self.faults_seen: dict[str, str] = {}  # ... in any sensing
+        self._grasp_memo: tuple[Any, int, str, list[Any]] | None = None
+        self._used_views: list[int] = []
+        self.view_gains: dict[int, int] = {}
 
     def sense(self) -> list[Any]:
-        """One view: every instance found, best score first (``Instance``).
+        """Every instance found, best score first (``Instance``), from one view or more.
+
+        The first view is the range finder's (the wrist camera from where the arm is when the
+        range finder fails). When the best instance scores below the fused sensor's
+        ``rescan_below`` or fewer than ``min_pad_points`` sensed points lie near a pad contact
+        of its best grasp, the arm takes the wrist camera to the candidate viewpoint that sees
+        most of that instance's predicted surface not seen yet, and the views are fused and
+        localized again (up to ``max_views``). ``views`` and ``view_log`` say what was done;
+        a failed device is named in ``faults`` and the views go on without it.
 
         Raises:
             MksError: sensing failed (every way of the points sensor).
         """
-        from mks_sim.localization.instances import localize_instances
+        from mks_sim.errors import MksError
+        from mks_sim.sensing.programs.views import HeldViews
 
         t = time.perf_counter()
-        self.sensed = localize_instances(self.devices, self.name, roi=self.roi, rng=self.rng)
+        self.faults = {}
+        self.view_log = []
+        # every input of the fused sensor, holding no view until one is captured
+        held: dict[str, Any] = {d: HeldViews(d) for d in ("range_finder", "wrist_camera")}
+        self._used_views = []
+        if not self._capture(held, "range_finder"):
+            # no scanner: the wrist camera's first view from the first reachable viewpoint
+            if self._move_to_next_view() is not None or not self.view.viewpoints:
+                self._capture(held, "wrist_camera")
+        self.sensed = self._localize(held)
+        while self.active and self._held_views(held) < self.view.max_views:
+            why = self._needs_view(scanned=bool(held["range_finder"].readings))
+            if not why:
+                break
+            try:
+                moved = self._move_to_next_view()
+            except MksError as exc:  # planning the view failed: keep what we have
+                self.view_log.append({"reason": why, "taken": False, "why_not": str(exc)})
+                break
+            if moved is None:
+                self.view_log.append({"reason": why, "taken": False, "why_not": "no viewpoint"})
+                break
+            if not self._capture(held, "wrist_camera"):
+                why_not = self.faults.get("wrist_camera", "no reading")
+                self.view_log.append({"reason": why, "taken": False, "why_not": why_not})
+                break
+            before = self.sensed
+            self.sensed = self._localize(held)
+            self.view_log.append(
+                {"reason": why, "taken": True, "viewpoint": [round(float(v), 4) for v in moved],
+                 "points_before": len(before.points), "points_after": len(self.sensed.points)}
+            )  # fmt: skip
+        self.views = self._held_views(held)
+        self.faults_seen.update(self.faults)
         self.perception_s = time.perf_counter() - t
         return list(self.sensed.instances.instances)
+
+    # -- active sensing ----------------------------------------------------------------------
+    def _capture(self, held: dict[str, Any], device: str) -> bool:
+        """Read ``device`` once into the held views; a failure is named in ``faults``."""
+        from mks_sim.errors import DeviceFailure
+
+        dev = self.devices.get(device)
+        if dev is None:
+            self.faults[device] = "not connected"
+            return False
+        try:
+            reading = dev.read()
+        except DeviceFailure as exc:
+            self.faults[device] = str(exc)
+            return False
+        held[device].readings.append(reading)
+        return True
+
+    @staticmethod
+    def _held_views(held: dict[str, Any]) -> int:
+        return sum(len(h.readings) for h in held.values())
+
+    def _localize(self, held: dict[str, Any]) -> Any:
+        from mks_sim.localization.instances import localize_instances
+
+        return localize_instances(
+            held, self.name, roi=self.roi, graph=self.graph, rng=self.rng, models=self.models,
+            sensor=VIEWS_SENSOR,
+        )  # fmt: skip
+
+    def _needs_view(self, *, scanned: bool = True) -> str:
+        """Why another view is wanted ("" : it is not): the best instance's score is low, or
+        its best grasp's pad contacts have few sensed points near them (occluded), or nothing
+        was found in the wrist camera's views (the scanner, which sees the whole bin, found
+        nothing: the bin is empty)."""
+        insts = self.sensed.instances.instances
+        if not insts:
+            return "" if scanned else "nothing found"
+        if insts[0].score < self.view.rescan_below:
+            return f"score {insts[0].score:.2f} < {self.view.rescan_below}"
+        cands = self.grasps(0)
+        if not cands:
+            return ""
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(self.sensed.points)
+        near = [len(tree.query_ball_point(c, self.view.pad_radius_m)) for c in cands[0].contacts_world]
+        if min(near) < self.view.min_pad_points:
+            return f"grasp side occluded ({min(near)} points near a pad)"
+        return ""
+
+    def _move_to_next_view(self) -> np.ndarray | None:
+        """Move the wrist camera to the candidate viewpoint not used yet that sees most of the
+        best instance's unseen predicted surface (nothing found yet: the next in the list),
+        and reachable; its pinch position, or None."""
+
+        cam = self.devices.get("wrist_camera")
+        if cam is None or not self.view.viewpoints:
+            return None
+        unused = [k for k in range(len(self.view.viewpoints)) if k not in self._used_views]
+        yaw = self.ctl.pinch_yaw()
+        insts = self.sensed.instances.instances if self.sensed is not None else ()
+        if not insts:
+            order = unused
+        else:
+            order = self._rank_views(cam, insts[0], unused, yaw)
+        for k in order:
+            target = np.asarray(self.view.viewpoints[k], dtype=float)
+            self._used_views.append(k)
+            if self.ctl.move_to(target, yaw, spacing_m=0.03):
+                return target
+        return None
+
+    def _rank_views(self, cam: Any, inst: Any, candidates: list[int], yaw: float) -> list[int]:
+        """The candidate viewpoints that see some of the instance's unseen predicted surface,
+        most first (the model ray-cast at its estimate, :mod:`mks_sim.localization.next_view`)."""
+        from mks_sim.localization.instances import instance_model
+        from mks_sim.localization.next_view import best_view
+        from mks_sim.sim import names
+        from mks_sim.sim.robot import hand_down_quat
+
+        model = instance_model(self.name, self.models)
+        T = inst.matrix
+        surf = np.asarray(model.surface_points()) @ T[:3, :3].T + T[:3, 3]
+        nrm = np.asarray(model.surface_normals()) @ T[:3, :3].T
+        data = self.world.data
+        pinch = np.eye(4)
+        pinch[:3, :3] = data.site(names.PINCH_SITE).xmat.reshape(3, 3)
+        pinch[:3, 3] = data.site(names.PINCH_SITE).xpos
+        mount = np.linalg.inv(pinch) @ cam.pose()  # the camera on the hand (robot's own model)
+        R = np.zeros(9)
+        mujoco.mju_quat2Mat(R, hand_down_quat(yaw))
+        cameras = []
+        for k in candidates:
+            P = np.eye(4)
+            P[:3, :3] = R.reshape(3, 3)
+            P[:3, 3] = self.view.viewpoints[k]
+            cameras.append(P @ mount)
+        seen = self.sensed.points
+        order, gains = best_view(
+            surf, nrm, cameras, cam.K, (cam.height, cam.width), self.sensed.scene_points, seen
+        )
+        self.view_gains = {candidates[j]: gains[j] for j in range(len(candidates))}
+        return [candidates[j] for j in order if gains[j] > 0]
 
     def grasps(self, i: int, *, obstacles: str = "all") -> list[Any]:
         """Collision-free grasp candidates of instance ``i`` of the last sensing, best first.
@@ -418,6 +621,9 @@ class BinPicker:
         """
         from mks_sim.tasks.grasp import synthesize_grasps
 
+        memo = self._grasp_memo
+        if memo is not None and memo[0] is self.sensed and memo[1:3] == (i, obstacles):
+            return list(memo[3])  # planned already for this sensing (active sensing's check)
         T = self.sensed.instances.instances[i].matrix
         obs = None
         if obstacles != "none":
@@ -429,10 +635,12 @@ class BinPicker:
             if obstacles == "fixed":
                 own |= _claimed_mask(self.sensed, -1)
             obs = P[~own & (P[:, 2] > self.table_z + 0.004)]
-        return synthesize_grasps(
+        cands = synthesize_grasps(
             self.obj, T, table_z=self.table_z, obstacles=obs, rng=self.rng,
             preferred_yaw=self.ctl.pinch_yaw(),
         )  # fmt: skip
+        self._grasp_memo = (self.sensed, i, obstacles, cands)
+        return cands
 
     def pick(
         self, cands: Sequence[Any], index: int = 0, perturb: PlanPerturbation | None = None
@@ -440,19 +648,26 @@ class BinPicker:
         """Reach, close, lift out, drop in the output box, go home. Returns (believed
         success from touch, failure reason)."""
         from mks_sim.tasks.episode import TOUCH_THRESHOLD_N
+        from mks_sim.tasks.grasp import down_rotation
 
         ctl = self.ctl
         ok, failure = _pick(
             ctl, cands, self.action, index, perturb, self.table_z, TOUCH_THRESHOLD_N
         )
+        self.last_tilt_deg = float(np.degrees(np.arccos(np.clip(-ctl.pinch_rotation()[2, 2], -1, 1))))
+        # a tilted hand keeps its orientation until it has let go, then turns back to the
+        # top-down home on the way there
+        tilted = float(ctl.pinch_rotation()[2, 2]) > -0.999
+        keep = ctl.pinch_rotation() if tilted else None
         if ok:
             box = np.array([*OUTPUT_BOX_XY, self.table_z + RELEASE_HEIGHT_M])
-            ctl.move_to(box, ctl.pinch_yaw(), spacing_m=0.03)
+            ctl.move_to(box, ctl.pinch_yaw(), spacing_m=0.03, rotation=keep)
         ctl.open(50)  # the part falls free before the hand moves (15 periods dragged it out)
         up = ctl.pinch_pos()
         up[2] = max(up[2], self.table_z + CLEARANCE_ABOVE_M)
-        ctl.move_to(up, ctl.pinch_yaw(), spacing_m=0.02)
-        ctl.move_to(self.home_pos, self.home_yaw, spacing_m=0.03)
+        ctl.move_to(up, ctl.pinch_yaw(), spacing_m=0.02, rotation=keep)
+        home_rot = down_rotation(self.home_yaw) if tilted else None
+        ctl.move_to(self.home_pos, self.home_yaw, spacing_m=0.03, rotation=home_rot)
         self.world.step(100)  # what was dropped comes to rest
         return ok, failure
 
@@ -474,6 +689,8 @@ def clear_bin(
     rng: np.random.Generator | None = None,
     budget: int | None = None,
     perturb: PlanPerturbation | None = None,
+    active: bool = True,
+    models: Sequence[str | Path] = (),
 ) -> dict[str, Any]:
     """Clear the bin: sense, localize every instance, pick the best-scored one that has a
     collision-free reachable grasp, lift it out, drop it in the output box, repeat.
@@ -490,6 +707,8 @@ def clear_bin(
         budget: picks at most (default 2 x the instances present + 2).
         perturb: ``(pick index, GraspPlan) -> GraspPlan`` applied before execution (tests:
             a grasp made to miss).
+        active: take a second view when the first is not good enough (``BinPicker.sense``).
+        models: extra model folders (``--models``).
 
     Returns:
         ``{"present", "picked", "cleared_fraction", "picks": [Pick.to_json()], "time_s",
@@ -498,7 +717,9 @@ def clear_bin(
     from mks_sim.errors import MksError
 
     t_start = time.perf_counter()
-    robot = BinPicker(world, devices, object_name=object_name, rng=rng)
+    robot = BinPicker(
+        world, devices, object_name=object_name, rng=rng, active=active, models=models
+    )
     budget = 2 * len(robot.bodies) + 2 if budget is None else budget
     failed_at: list[np.ndarray] = []
     picks: list[Pick] = []
@@ -541,7 +762,9 @@ def clear_bin(
         if chosen is None:
             why = f"no grasp ({blocked} blocked by obstacles, {no_pair} without a pair)"
             dt = time.perf_counter() - t0
-            picks.append(Pick(-1, False, False, why, dt, robot.perception_s, 1, 0.0, None))
+            picks.append(
+                Pick(-1, False, False, why, dt, robot.perception_s, robot.views, 0.0, None)
+            )
             stopped = "no collision-free grasp for any instance found"
             break
         i, cands = chosen
@@ -562,9 +785,10 @@ def clear_bin(
                 "" if success else failure,
                 dt,
                 robot.perception_s,
-                1,
+                robot.views,
                 float(found[i].score),
                 body,
+                robot.last_tilt_deg,
             )  # fmt: skip
         )
     picked = robot.picked()
@@ -575,6 +799,7 @@ def clear_bin(
         "picks": [p.to_json() for p in picks],
         "time_s": round(time.perf_counter() - t_start, 3),
         "stopped": stopped,
+        "faults": robot.faults_seen,
     }
 
 
@@ -594,6 +819,20 @@ def _claimed_mask(sensed: Any, i: int) -> np.ndarray:
     return mask
 
 
+#: Candidates a pick tries when the arm cannot reach one (the pre-grasp out of reach, or the
+#: descent blocked): the best top-down ones, then the best tilted ones.
+TRY_TOP_DOWN = 3
+TRY_TILTED = 3
+
+
+def _to_try(cands: Sequence[Any]) -> list[Any]:
+    """The candidates a pick tries, in order: the first :data:`TRY_TOP_DOWN` top-down ones,
+    then the first :data:`TRY_TILTED` tilted ones (``rotation_world`` set)."""
+    top = [c for c in cands if getattr(c, "rotation_world", None) is None]
+    tilted = [c for c in cands if getattr(c, "rotation_world", None) is not None]
+    return top[:TRY_TOP_DOWN] + tilted[:TRY_TILTED]
+
+
 def _pick(
     ctl: Any,
     cands: Sequence[Any],
@@ -607,22 +846,24 @@ def _pick(
     failure reason)."""
     plan = None
     no_ik = blocked = 0
-    for cand in cands[:4]:
+    for cand in _to_try(cands):
         p = cand.plan(action)
         if perturb is not None:
             p = perturb(index, p)
+        rot = p.target_rotation
         ctl.preshape(p.preshape_q, 10)
-        if not ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.03):
+        if not ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.03, rotation=rot):
             no_ik += 1
             continue
-        if ctl.move_to(np.asarray(p.grasp_point_world), p.yaw_rad, spacing_m=0.01):
+        if ctl.move_to(np.asarray(p.grasp_point_world), p.yaw_rad, spacing_m=0.01, rotation=rot):
             plan = p
             break
         blocked += 1
-        ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.02)
+        ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.02, rotation=rot)
     if plan is None:
         return False, f"unreachable ({no_ik} pre-grasp, {blocked} descent blocked)"
-    closed = ctl.close(threshold=touch_n, yaw=plan.yaw_rad)
+    rot = plan.target_rotation
+    closed = ctl.close(threshold=touch_n, yaw=plan.yaw_rad, rotation=rot)
     a, b = closed.sides(touch_n)
     if not (a and b):
         return False, "no two-sided contact"
@@ -631,7 +872,7 @@ def _pick(
         return False, "closed on nothing"
     up = np.asarray(plan.grasp_point_world, dtype=float).copy()
     up[2] = table_z + CLEARANCE_ABOVE_M
-    ctl.move_to(up, plan.yaw_rad, spacing_m=0.01)
+    ctl.move_to(up, plan.yaw_rad, spacing_m=0.01, rotation=rot)
     t = np.nan_to_num(ctl.touch(), nan=-1.0)
     if not (t[0] > touch_n and max(t[1], t[2]) > touch_n):
         return False, "slipped"
@@ -647,17 +888,19 @@ def run_clear_bin(
     budget: int | None = None,
     perturb: PlanPerturbation | None = None,
     scene: str | Path = BIN_SCENE,
+    active: bool = True,
+    models: Sequence[str | Path] = (),
 ) -> dict[str, Any]:
     """Build the bin from ``seed`` and clear it (:func:`clear_bin`): the record of
     ``mks-sim grasp --task clear_bin`` (plus ``seed``, ``object``, ``failed_devices``)."""
     from mks_sim.devices import DeviceFaults, make_devices
 
-    world = bin_world(seed, count=count, object=object_name, scene=scene)
+    world = bin_world(seed, count=count, object=object_name, scene=scene, models=models)
     name = object_name or next(iter(world.scene.models.values()))
     faults = {dev: DeviceFaults(failed=True) for dev in fail}
     with make_devices(world.model, world.data, np.random.default_rng(seed), faults) as devices:
         rec = clear_bin(
             world, devices, object_name=name, rng=np.random.default_rng(seed), budget=budget,
-            perturb=perturb,
+            perturb=perturb, active=active, models=models,
         )  # fmt: skip
     return {"seed": seed, "object": name, "failed_devices": list(fail), **rec}

@@ -151,6 +151,7 @@ def fuse_views(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> Stream:
     names: list[str] = []
     clouds: list[np.ndarray] = []
     for device, reading in inputs.items():
+        # an input holding no view yet (the wrist camera before the arm moved) adds none
         readings = list(reading) if isinstance(reading, Views) else [reading]
         for k, r in enumerate(readings):
             clouds.append(postprocess(view_points(r, p.stride), params))
