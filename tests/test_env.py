@@ -97,7 +97,7 @@ def test_same_seed_same_rollout_and_reset_restores_state() -> None:
 @pytest.mark.slow
 def test_render_pickle_and_faults() -> None:
     env = _make(object="sphere", render_mode="rgb_array", render_size=(64, 48),
-                faults=("touch_finger_1",))  # fmt: skip
+                faults=("touch_finger_1", "finger_torque_1"))  # pad and its stand-in  # fmt: skip
     try:
         obs, info = env.reset(seed=3)
         frame = env.render()

@@ -91,3 +91,88 @@ def test_unknown_task(tmp_path: Path) -> None:
     _write(tmp_path, GOOD)
     with pytest.raises(NotFound, match=r"task 'nope' not found; known tasks: \['t1'\]"):
         get_task("nope", tmp_path)
+
+
+# ----------------------------------------------- touch stand-ins, faults named (issue 12)
+
+
+class _Dev:
+    def __init__(self, name: str, force: float, *, fail: bool = False) -> None:
+        from types import SimpleNamespace
+
+        import numpy as np
+
+        self.name, self.fail = name, fail
+        x = {"1": -0.02, "2": 0.02, "3": 0.03}[name[-1]]
+        self.reading = SimpleNamespace(
+            force=np.array([force]), pressure=np.array([force * 1e4]),
+            positions_world=np.array([[x, 0.0, 1.0]]),
+        )  # fmt: skip
+
+    def read(self):
+        from mks_sim.errors import DeviceFailure
+
+        if self.fail:
+            raise DeviceFailure(self.name, "failed (fault injected)")
+        return self.reading
+
+
+def _hand(failed: tuple[str, ...]) -> dict:
+    pads = {f"touch_finger_{i}": 1.0 + i for i in (1, 2, 3)}
+    torques = {f"finger_torque_{i}": 10.0 + i for i in (1, 2, 3)}
+    return {n: _Dev(n, f, fail=n in failed) for n, f in {**pads, **torques}.items()}
+
+
+@pytest.mark.parametrize(
+    ("failed", "expected", "stand_ins"),
+    [
+        ((), [2.0, 3.0, 4.0], {}),
+        (("touch_finger_1",), [11.0, 3.0, 4.0], {"touch_finger_1": "finger_torque_1"}),
+        (("touch_finger_3",), [2.0, 3.0, 13.0], {"touch_finger_3": "finger_torque_3"}),
+        (("touch_finger_1", "finger_torque_1"), [None, 3.0, 4.0], {}),
+    ],
+)
+def test_touch_reader_stands_a_finger_torque_in_for_a_failed_pad(failed, expected, stand_ins):
+    import numpy as np
+
+    from mks_sim.tasks.episode import make_touch_reader
+
+    reader = make_touch_reader(_hand(failed))
+    got = reader()
+    want = np.array([np.nan if e is None else e for e in expected])
+    assert np.array_equal(got, want, equal_nan=True)
+    assert reader.stand_ins == stand_ins and reader.failed == set(failed)
+
+
+@pytest.mark.parametrize(
+    ("failed", "way"),
+    [
+        (("touch_finger_1",), "Torque_For_Pad_1"),
+        (("touch_finger_2",), "Torque_For_Pad_2"),
+        (("touch_finger_1", "finger_torque_1"), "Without_Pad_1"),
+        (("touch_finger_1", "touch_finger_2"), "none"),
+    ],
+)
+def test_failed_pad_is_named_with_the_way_touch_contacts_ran(failed, way) -> None:
+    """Through the installed sensor graph (sensors/touch.toml): the failure reason names the
+    failed pad and the Touch_Contacts way; the warnings say which alternate served."""
+    from mks_sim.tasks.episode import EpisodeAssembly
+
+    ep = EpisodeAssembly(task_for_object("cube"), faults=failed)
+    ep.devices = _hand(failed)
+    pads = ", ".join(d for d in failed if d.startswith("touch"))
+    assert ep.touch_fault() == f"{pads} failed (Touch_Contacts ran on {way})"
+    assert ep.failed_devices() == tuple(sorted(failed))
+    assert ep.warnings() == (f"Touch_Contacts ran on alternate {way}",)
+    healthy = EpisodeAssembly(task_for_object("cube"))
+    healthy.devices = _hand(())
+    assert healthy.touch_fault() == "" and healthy.warnings() == ()
+
+
+def test_fault_fields_one_format() -> None:
+    from mks_sim.sensing.faults import fault_fields
+
+    got = fault_fields(["stereo_left", "range_finder", "range_finder"],
+                       {"Vertex_Detector": "primary", "Range_Points": "Stereo_Points"})  # fmt: skip
+    assert got == {"faults": ["range_finder", "stereo_left"],
+                   "warnings": ["Range_Points ran on alternate Stereo_Points"]}  # fmt: skip

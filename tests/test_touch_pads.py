@@ -120,3 +120,66 @@ def test_taxel_layout_rows_run_towards_the_tip() -> None:
         geom = world.model.geom(names.touch_geom(f, 4))
         assert site.bodyid[0] == geom.bodyid[0]
         assert world.model.body(site.bodyid[0]).name == names.FINGER_TIP_BODIES[f - 1]
+
+
+# --------------------------------------------------------------- finger joint-torque devices
+
+
+def _torque_devices(world: World):
+    from mks_sim.devices.factory import FINGER_TORQUE_DEVICES, make_devices
+
+    return make_devices(world.model, world.data, np.random.default_rng(0),
+                        names=FINGER_TORQUE_DEVICES)  # fmt: skip
+
+
+def _agree_with_pads(world: World) -> np.ndarray:
+    """Each finger's torque reading against its pad (simulator touch sensors, the reference):
+    pressing exactly when the pad feels > 0.05 N, with an equivalent force within a factor 1.5
+    of the pad's. Returns the (3,) pressing flags."""
+    pad_force = _taxels(world).sum(axis=1)
+    pressing = []
+    for f, dev in zip(names.FINGERS, _torque_devices(world).values(), strict=True):
+        r = dev.read()
+        assert r.pressing == (pad_force[f - 1] > 0.05), (f, r, pad_force)
+        if r.pressing:
+            assert pad_force[f - 1] / 1.5 < r.force[0] < 1.5 * pad_force[f - 1], (f, r, pad_force)
+            assert r.pressure[0] > 500.0  # above Touch_Contacts' threshold
+        else:
+            assert r.force[0] == 0.0 and r.pressure[0] == 0.0
+        pressing.append(r.pressing)
+    return np.array(pressing)
+
+
+@pytest.mark.slow
+def test_finger_torque_reads_contact_like_the_pads() -> None:
+    """Open in the air: no finger presses; closed on the cube: every finger presses (from the
+    motor torque and encoder only), as the pads say; closed on nothing, the fingers at the
+    joint's stop do not, the two meeting each other do (their pads touch too)."""
+    world = _lone_cube_world()
+    assert not _agree_with_pads(world).any()
+    _grasp_cube(world)
+    assert _agree_with_pads(world).all()
+    air = _lone_cube_world()
+    far = np.eye(4)
+    far[:3, 3] = (0.6, -0.3, names.TABLE_TOP_Z + 0.05)
+    air.set_object_pose(names.CUBE, far)
+    _run(air, np.array([air.data.joint(j).qpos[0] for j in names.ARM_JOINTS]), 600)
+    assert _agree_with_pads(air).sum() in (0, 2)  # nothing, or two fingertips meeting
+
+
+@pytest.mark.slow
+def test_finger_torque_faults() -> None:
+    from mks_sim.devices import DeviceFaults
+    from mks_sim.errors import DeviceFailure
+
+    world = _lone_cube_world()
+    _grasp_cube(world)
+    dev = _torque_devices(world)["finger_torque_1"]
+    first = dev.read()
+    dev.faults = DeviceFaults(dropout=1.0)
+    assert not dev.read().pressing  # every reading dropped
+    dev.faults = DeviceFaults(failed=True)
+    with pytest.raises(DeviceFailure, match="finger_torque_1"):
+        dev.read()
+    dev.faults = DeviceFaults(noise_scale=0.0)
+    assert dev.read().pressing and abs(dev.read().torque_nm - first.torque_nm) < 0.05

@@ -174,6 +174,11 @@ def run(args: argparse.Namespace) -> int:
         headers = ("seed", "success", "retries", "pos err mm", "rot err deg", "time s",
                    "re-sensed", "corrections", "failure")  # fmt: skip
         print(format_table(headers, rows))
+        failed = sorted({d for e in episodes for d in e.get("faults", ())})
+        if failed:
+            print(f"failed devices: {', '.join(failed)}")
+        for line in sorted({w for e in episodes for w in e.get("warnings", ())}):
+            print(f"warning: {line}")
         print(
             f"success rate: {doc['success_rate']:.2f} ({len(episodes)} episodes, object {args.object})"
         )

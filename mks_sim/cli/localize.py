@@ -126,12 +126,14 @@ def run_trial(
 
     Returns:
         ``{"object", "scene", "seed", "found", "matrix", "truth", "error": {"position_mm",
-        "rotation_deg"}, "success", "provenance", "time_s", "timing_s", "failed_devices", "failure"}``
+        "rotation_deg"}, "success", "provenance", "time_s", "timing_s", "failed_devices",
+        "failure", "faults", "warnings"}``
         (matrices 4x4 column convention, world frame, metres; errors None when not found;
         ``failure`` names the fault when a needed logical sensor had no working way).
     """
     from mks_sim.devices import DeviceFaults, make_devices
     from mks_sim.models.objects import load_object
+    from mks_sim.sensing.faults import fault_fields
     from mks_sim.sim import truth
     from mks_sim.sim.world import build_world
     from mks_sim.tasks.evaluate import object_pose_error
@@ -196,6 +198,8 @@ def run_trial(
         "timing_s": _timing(result),
         "failed_devices": list(fail),
         "failure": failure,
+        # one format with `grasp --json` (mks_sim.sensing.faults): "faults", "warnings"
+        **fault_fields(fail, {} if result is None else dict(result.provenance)),
     }
 
 
@@ -271,6 +275,7 @@ def run(args: argparse.Namespace) -> int:
         out["timing_s"] = rec["timing_s"]
         out.update(scene=rec["scene"], seed=rec["seed"], success=rec["success"])
         out.update(failed_devices=rec["failed_devices"], failure=rec["failure"])
+        out.update(faults=rec["faults"], warnings=rec["warnings"])
         print(json.dumps(out, allow_nan=False))
     else:
         print(format_text(rec))

@@ -2,7 +2,8 @@
 
 Stable device names (``docs/architecture.md``): ``overhead_camera``, ``stereo_left``,
 ``stereo_right``, ``depth_camera``, ``range_finder``, ``touch_finger_1..3``, ``wrist_camera``
-(RGB-D on the Jaco's hand, moved by the arm; issue 13). Each device gets
+(RGB-D on the Jaco's hand, moved by the arm; issue 13), ``finger_torque_1..3`` (each
+finger's motor torque and encoder: is it pressing on something; issue 12). Each device gets
 its own generator spawned from ``rng`` in that fixed order, so one seed gives the same readings
 however many devices are read. A device whose MuJoCo element is missing from the model (a
 world without a hand has no touch pads) is left out, with a log message.
@@ -19,6 +20,7 @@ import numpy as np
 
 from mks_sim.devices.camera import Camera, CameraNoise
 from mks_sim.devices.faults import NO_FAULTS, DeviceFaults, SimDevice
+from mks_sim.devices.finger_torque import FingerTorque
 from mks_sim.devices.range_finder import RangeFinder, ScanPattern
 from mks_sim.devices.touch import TouchPad
 from mks_sim.errors import NotFound, SpecError
@@ -32,7 +34,12 @@ TOUCH_DEVICES = ("touch_finger_1", "touch_finger_2", "touch_finger_3")
 ROBOT_CAMERAS = {"wrist_camera": f"{sim_names.HAND_PREFIX}wrist_camera"}
 # New devices go last: each device's generator is the i-th child of the seed, so appending
 # keeps every existing device's readings.
-DEVICE_NAMES = (*CAMERA_DEVICES, "range_finder", *TOUCH_DEVICES, *ROBOT_CAMERAS)
+#: Each finger's joint-torque sensing (motor torque + encoder): "finger i presses on
+#: something", the Touch_Contacts alternate for a failed pad (devices/finger_torque.py).
+FINGER_TORQUE_DEVICES = ("finger_torque_1", "finger_torque_2", "finger_torque_3")
+DEVICE_NAMES = (
+    *CAMERA_DEVICES, "range_finder", *TOUCH_DEVICES, *ROBOT_CAMERAS, *FINGER_TORQUE_DEVICES
+)  # fmt: skip
 
 # Default options per device (overridable through make_devices(options=...)).
 DEFAULT_OPTIONS: dict[str, dict[str, Any]] = {
@@ -61,6 +68,9 @@ DEFAULT_OPTIONS: dict[str, dict[str, Any]] = {
         "depth": True,
         "noise": CameraNoise(depth_sigma_m=0.0003, depth_sigma_rel=0.0005),
     },
+    "finger_torque_1": {},
+    "finger_torque_2": {},
+    "finger_torque_3": {},
 }
 
 
@@ -194,6 +204,19 @@ def _make_one(
             return None
         opts.setdefault("self_bodies", _robot_bodies(model))
         return RangeFinder(model, data, mounts, rng, name=name, **opts)
+    if name in FINGER_TORQUE_DEVICES:
+        finger = int(name.rsplit("_", 1)[1])
+        joint, act = sim_names.FINGER_JOINTS[finger - 1], sim_names.FINGER_ACTUATORS[finger - 1]
+        sites = tuple(sim_names.touch_site(finger, i) for i in range(sim_names.TAXELS_PER_PAD))
+        present = (
+            mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, joint) >= 0
+            and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, act) >= 0
+            and all(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, s) >= 0 for s in sites)
+        )
+        if not present:
+            logger.info("device %s: no finger joint / actuator / pad in the model; left out", name)
+            return None
+        return FingerTorque(model, data, joint, act, sites, rng, name=name, **opts)
     sensors = _touch_sensors(model, name)
     if not sensors:
         logger.info("device %s: no taxel sensors in the model; left out", name)

@@ -42,6 +42,9 @@ FrameSink = Callable[[np.ndarray], None]
 
 OBJECTS = ("cube", "sphere", "part")
 TOUCH_DEVICES = ("touch_finger_1", "touch_finger_2", "touch_finger_3")
+# Each finger's joint-torque device stands in for its pad when the pad fails (the same
+# substitution as the Touch_Contacts alternates Torque_For_Pad_<i>, sensors/touch.toml).
+TORQUE_DEVICES = ("finger_torque_1", "finger_torque_2", "finger_torque_3")
 TOUCH_THRESHOLD_N = 0.05  # summed pad force; the pads' noise floor is ~5 mN
 # Issue 9 section 4: re-sense at least every 0.2 s of simulated time until the fingers close,
 # and correct the target when the estimate moved by more than a few millimetres / degrees
@@ -99,8 +102,11 @@ class EpisodeResult:
         sim_time_s: simulated time, seconds.
         believed_success: what the robot itself concluded from touch and re-sensing.
         min_clearance_m: lowest clearance during the final hold (ground truth), metres.
-        failure: why the last attempt failed ("" on success).
-        faults: devices failed for the episode.
+        failure: why the last attempt failed ("" on success); names the failed device when
+            the failure depends on one.
+        faults: devices failed in the episode: the injected ones and any that raised.
+        warnings: logical sensors that ran on an alternate, one line each
+            (``mks_sim.sensing.faults``: the same format as ``mks-sim localize --json``).
         estimate: the last estimate used, 16 floats row-major (or None).
         attempts_log: what each attempt did, in order.
         relocalizations: every re-sensing during the approaches, in order.
@@ -118,6 +124,7 @@ class EpisodeResult:
     min_clearance_m: float = float("nan")
     failure: str = ""
     faults: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
     estimate: tuple[float, ...] | None = None
     attempts_log: tuple[str, ...] = field(default_factory=tuple)
     relocalizations: tuple[Relocalization, ...] = ()
@@ -145,6 +152,8 @@ class EpisodeResult:
             "sim_time_s": round(self.sim_time_s, 3),
             "believed_success": self.believed_success,
             "failure": self.failure,
+            "faults": list(self.faults),
+            "warnings": list(self.warnings),
             "relocalizations": len(self.relocalizations),
             "corrections": self.corrections,
             "ignored_moves": sum(not r.plausible for r in self.relocalizations),
@@ -202,24 +211,61 @@ def sensor_localize_fn(
     return fn
 
 
-def make_touch_reader(devices: Mapping[str, Any]) -> Callable[[], np.ndarray]:
-    """(3,) summed pad forces (N) from the touch devices; nan for a failed pad."""
+class TouchReader:
+    """The controller's touch: (3,) summed fingertip forces (N) of fingers 1, 2, 3.
 
-    def read() -> np.ndarray:
+    A finger whose pad fails (its device raises or is absent) is read from its joint-torque
+    device instead (``finger_torque_<i>``: the equivalent fingertip force while the finger is
+    stalled on something, 0 otherwise) - the substitution of the ``Touch_Contacts``
+    alternates ``Torque_For_Pad_<i>`` - so the thumb's side of a grasp is still sensed; nan
+    when both fail.
+
+    Attributes:
+        failed: devices that raised when read.
+        stand_ins: pad -> the device that stood in for it.
+    """
+
+    def __init__(self, devices: Mapping[str, Any]) -> None:
+        self.devices = devices
+        self.failed: set[str] = set()
+        self.stand_ins: dict[str, str] = {}
+
+    def __call__(self) -> np.ndarray:
         out = np.full(3, np.nan)
-        for i, name in enumerate(TOUCH_DEVICES):
-            dev = devices.get(name)
-            if dev is None:
-                continue
-            try:
-                reading = dev.read()
-            except DeviceFailure:
-                continue
-            force = getattr(reading, "force", reading)
-            out[i] = float(np.sum(force))
+        for i, ways in enumerate(zip(TOUCH_DEVICES, TORQUE_DEVICES, strict=True)):
+            for name in ways:
+                dev = self.devices.get(name)
+                if dev is None:
+                    continue
+                try:
+                    reading = dev.read()
+                except DeviceFailure:
+                    self.failed.add(name)
+                    continue
+                if name != ways[0]:
+                    self.stand_ins[ways[0]] = name
+                out[i] = float(np.sum(getattr(reading, "force", reading)))
+                break
         return out
 
-    return read
+
+def make_touch_reader(devices: Mapping[str, Any]) -> TouchReader:
+    """The controller's touch reader over ``devices`` (see :class:`TouchReader`)."""
+    return TouchReader(devices)
+
+
+def touch_way(devices: Mapping[str, Any]) -> str:
+    """The way that serves the ``Touch_Contacts`` logical sensor over ``devices`` now
+    (``"primary"``, an alternate's name, or ``"none"`` when every way fails)."""
+    from mks_sim.sensing import SensorGraph
+
+    snap = SensorGraph.from_dir().snapshot(devices)
+    try:
+        snap.get("Touch_Contacts")
+    except (SensorFailure, DeviceFailure, NotFound) as exc:
+        logger.info("Touch_Contacts unavailable: %s", exc)
+        return "none"
+    return snap.provenance.get("Touch_Contacts", "primary")
 
 
 def build_episode_world(task: TaskSpec, rng: np.random.Generator) -> Any:
@@ -370,6 +416,7 @@ class EpisodeAssembly:
         self._own_devices = False
         self._rng = np.random.default_rng(0)
         self.on_localized: Callable[[np.ndarray | None], None] | None = None
+        self.touch_reader: TouchReader | None = None
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -382,6 +429,9 @@ class EpisodeAssembly:
         self._last_sensed = -math.inf
         self._last_found = -math.inf
         self._moved: np.ndarray | None = None
+        # sensor -> the alternates that served it this episode (first seen first)
+        self.alternates: dict[str, list[str]] = {}
+        self._touch_way: str | None = None
 
     # -- episode set-up ------------------------------------------------------------------
     def initialize_episode(
@@ -418,15 +468,21 @@ class EpisodeAssembly:
         rec = self.recorder
         rec.log_world(world)
         sensed = rec.tap_devices(devices)  # the devices themselves when not recording
+
+        def on_result(result: Any) -> None:
+            self._note_provenance(getattr(result, "provenance", {}))
+            if rec.enabled:
+                rec.log_localization(result, world=world)
+
         self.localize_fn = self._localize_override or sensor_localize_fn(
-            sensed, graph=rec.tap_graph(None),
-            on_result=(lambda r: rec.log_localization(r, world=world)) if rec.enabled else None,
-        )  # fmt: skip
+            sensed, graph=rec.tap_graph(None), on_result=on_result
+        )
         self.scene_points_fn = make_scene_points_fn(sensed)
         if rec.enabled:
             on_frame = _also(on_frame, lambda: rec.log_robot(world))
+        self.touch_reader = make_touch_reader(sensed)
         ctl = ArmHandController(world.physics, RobotNames.from_model(world.model),
-                                make_touch_reader(sensed), on_frame=on_frame,
+                                self.touch_reader, on_frame=on_frame,
                                 frame_every=frame_every)  # fmt: skip
         ctl.after_step = self.after_step
         self.controller = ctl
@@ -440,6 +496,49 @@ class EpisodeAssembly:
             self.devices.close()
         self.devices = None
         self._own_devices = False
+
+    # -- faults and alternates -----------------------------------------------------------
+    def _note_provenance(self, provenance: Mapping[str, str]) -> None:
+        for sensor, way in provenance.items():
+            if way != "primary" and way not in self.alternates.setdefault(sensor, []):
+                self.alternates[sensor].append(way)
+
+    def failed_devices(self) -> tuple[str, ...]:
+        """Devices failed in the episode: the injected ones, any that raised when the hand
+        read them, and any failed now (a fault injected mid-episode), sorted."""
+        failed = set(self.faults)
+        if self.touch_reader is not None:
+            failed |= self.touch_reader.failed
+        for name, dev in (self.devices or {}).items():
+            if getattr(getattr(dev, "faults", None), "failed", False):
+                failed.add(name)
+        return tuple(sorted(failed))
+
+    def touch_fault(self) -> str:
+        """Empty when every pad reads, else e.g. ``touch_finger_1 failed (Touch_Contacts ran on
+        Torque_For_Pad_1)`` (the way evaluated once per episode through the sensor graph)."""
+        lost = [d for d in TOUCH_DEVICES if d in self.failed_devices()]
+        if not lost:
+            return ""
+        if self._touch_way is None:
+            self._touch_way = touch_way(self.devices) if self.devices is not None else "none"
+            self._note_provenance({"Touch_Contacts": self._touch_way})
+        return f"{', '.join(lost)} failed (Touch_Contacts ran on {self._touch_way})"
+
+    def warnings(self) -> tuple[str, ...]:
+        """One line per logical sensor that ran on an alternate during the episode."""
+        from mks_sim.sensing.faults import alternate_warnings
+
+        self.touch_fault()  # evaluates the Touch_Contacts way when a pad failed
+        return tuple(
+            line
+            for sensor, ways in sorted(self.alternates.items())
+            for line in alternate_warnings({sensor: ", then ".join(ways)})
+        )
+
+    def _with_fault(self, reason: str) -> str:
+        fault = self.touch_fault()
+        return f"{reason}: {fault}" if fault else reason
 
     # -- callbacks -----------------------------------------------------------------------
     def after_step(self) -> bool:
@@ -552,12 +651,14 @@ class EpisodeAssembly:
             for _ in range(MAX_CORRECTIONS + 1):
                 self.plan = plan
                 ctl.preshape(plan.preshape_q, 10)
-                if ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.03):
+                rot = plan.target_rotation  # a tilted grasp's hand rotation (grasp room)
+                if ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.03, rotation=rot):
                     if ctl.move_to(np.asarray(plan.grasp_point_world), plan.yaw_rad,
-                                   spacing_m=0.01):  # fmt: skip
+                                   spacing_m=0.01, rotation=rot):  # fmt: skip
                         return "reached", plan
                     if self._moved is None:
-                        ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.02)
+                        ctl.move_to(plan.pregrasp_world, plan.yaw_rad, spacing_m=0.02,
+                                    rotation=rot)  # fmt: skip
                         return "blocked", plan
                 elif self._moved is None:
                     return "unreachable", plan
@@ -605,19 +706,22 @@ class EpisodeAssembly:
         assert self.estimate is not None
         self.recorder.log_grasps((), plan)
         self._note(_describe(plan, self.estimate))
-        closed = ctl.close(threshold=TOUCH_THRESHOLD_N, yaw=plan.yaw_rad)
+        closed = ctl.close(threshold=TOUCH_THRESHOLD_N, yaw=plan.yaw_rad,
+                           rotation=plan.target_rotation)  # fmt: skip
         a, b = closed.sides(TOUCH_THRESHOLD_N)
         if not (a and b):
-            return False, f"no two-sided contact (finger 1: {a}, fingers 2/3: {b})"
+            sides = f"no two-sided contact (finger 1: {a}, fingers 2/3: {b})"
+            return False, self._with_fault(sides)
         z0 = float(self.estimate[2, 3])
-        ctl.move_to(plan.lifted_world, plan.yaw_rad, spacing_m=0.01)
+        ctl.move_to(plan.lifted_world, plan.yaw_rad, spacing_m=0.01,
+                    rotation=plan.target_rotation)  # fmt: skip
         for _ in range(max(1, int(round(HOLD_S / ctl.control_dt)))):
             ctl.step()
             if self.monitor is not None:
                 self.monitor.sample()
         t = np.nan_to_num(ctl.touch(), nan=-1.0)
         if not (t[0] > TOUCH_THRESHOLD_N and max(t[1], t[2]) > TOUCH_THRESHOLD_N):
-            return False, "contact lost while lifting"
+            return False, self._with_fault("contact lost while lifting")
         again = self.localize()
         if again is not None and again[2, 3] - z0 < 0.5 * act.lift_height_m:
             return False, f"re-sensed object only {1000 * (again[2, 3] - z0):.0f} mm higher"
@@ -725,7 +829,8 @@ def run_episode(
             believed_success=believed,
             min_clearance_m=episode.monitor.min_clearance_m,
             failure="" if success else reason,
-            faults=episode.faults,
+            faults=episode.failed_devices(),
+            warnings=episode.warnings(),
             estimate=None if est is None else tuple(float(v) for v in np.ravel(est)),
             attempts_log=tuple(episode.log),
             relocalizations=tuple(episode.relocalizations),
