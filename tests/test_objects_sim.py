@@ -1,7 +1,11 @@
 """Objects at random resting poses in the simulator: added meshes and database objects are
-dropped from random orientations, settled by physics, and localized through
-``mks_sim.workstation.localize_object`` within 5 mm / 5 degrees modulo their symmetries
-(issue 10 section 5). Ground truth is read after localization, for evaluation only."""
+dropped from random orientations, settled by physics, localized through
+``mks_sim.workstation.localize_object`` within 5 mm / 5 degrees modulo their symmetries and
+grasped (issue 10 section 5: an L-bracket, a cylinder, a wedge and an asymmetric blob, each
+added with ``objects add``). Ground truth is read after localization, for evaluation only.
+
+Seeds are tuning seeds (0-19); what fails in another room is an ``xfail`` naming the room and
+the reason, so it turns green there without an edit here (``strict=False``)."""
 
 from __future__ import annotations
 
@@ -22,11 +26,28 @@ import _gen_meshes as gen  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
+GENERATED = ("l_bracket", "cylinder", "wedge", "blob")
+NO_FREEFORM = pytest.mark.xfail(
+    strict=False,
+    reason="engine room: the workstation flow has no free-form path (kinds = ['freeform'] is "
+    "localized as a polyhedral surface: the cylinder has no corners, the blob is not found)",
+)
+ON_EDGES = pytest.mark.xfail(
+    strict=False,
+    reason="engine room: seeds 11/15/19 settle the bracket on its two leg ends (no face on the "
+    "table); support-face hypotheses assume a face, the bracket is not found",
+)
+THIN_WALLS = pytest.mark.xfail(
+    strict=False,
+    reason="grasp room: the bracket standing on a leg (a 10 mm wall up) or lying flat (25 mm "
+    "tall) gets 'no antipodal pair passes the hand and collision filters' (seeds 12, 13, 14)",
+)
+
 
 @pytest.fixture(scope="module")
 def models(tmp_path_factory: pytest.TempPathFactory) -> Path:
     folder = tmp_path_factory.mktemp("generated")
-    for name in ("l_bracket", "wedge"):
+    for name in GENERATED:
         tm = getattr(gen, name)()
         tm.apply_scale(1000.0)
         tm.export(folder / f"{name}.stl")
@@ -34,7 +55,7 @@ def models(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return folder / "models"
 
 
-@pytest.mark.parametrize("name", ["l_bracket", "wedge"])
+@pytest.mark.parametrize("name", GENERATED)
 def test_added_object_rests_on_a_stable_face(models: Path, name: str) -> None:
     """Dropped at three seeds: on the table (lowest vertex at the top), at rest, in the region."""
     obj = load_object(name, models=[models])
@@ -71,12 +92,39 @@ def test_database_object_dropped_is_localized(tmp_path: Path, name: str, seed: i
     assert rec["success"], rec["error"]  # within 5 mm and 5 degrees modulo symmetry
 
 
-@pytest.mark.parametrize("name", ["l_bracket", "wedge"])
-def test_added_object_dropped_is_localized(models: Path, name: str) -> None:
+@pytest.mark.parametrize(
+    ("name", "seed"),
+    [
+        ("l_bracket", 21),
+        ("l_bracket", 14),  # lying flat
+        pytest.param("l_bracket", 11, marks=ON_EDGES),
+        ("wedge", 21),
+        ("wedge", 12),
+        pytest.param("cylinder", 11, marks=NO_FREEFORM),
+        pytest.param("blob", 11, marks=NO_FREEFORM),
+    ],
+)
+def test_added_object_dropped_is_localized(models: Path, name: str, seed: int) -> None:
     try:
-        rec = _localize(name, None, 21, [models])
+        rec = _localize(name, None, seed, [models])
     except NotFound as exc:
         if "localize_object" in str(exc):
             pytest.xfail(f"the engine does not resolve added objects yet: {exc}")
         raise
     assert rec["success"], rec["error"]
+
+
+@pytest.mark.parametrize(
+    ("name", "seed"),
+    [("wedge", 11), pytest.param("l_bracket", 12, marks=THIN_WALLS)],
+)
+def test_added_object_dropped_is_grasped(
+    models: Path, monkeypatch: pytest.MonkeyPatch, name: str, seed: int
+) -> None:
+    """The whole episode on an added object (its default task: the object alone, dropped):
+    sensed, localized, a grasp synthesised from its mesh, lifted and held (simulator verdict)."""
+    from mks_sim.tasks.episode import run_episode
+
+    monkeypatch.setenv("MKS_SIM_MODELS", str(models))
+    res = run_episode(name, seed)
+    assert res.success, res.failure
