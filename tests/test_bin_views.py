@@ -203,3 +203,28 @@ def test_a_failed_wrist_camera_falls_back_to_one_view() -> None:
     assert found and robot.views == 1
     assert robot.sensed.views == ("range_finder#0",)
     assert "wrist_camera" in robot.faults
+
+
+@pytest.mark.slow
+def test_models_folder_object_in_the_bin(tmp_path, capsys) -> None:
+    import json
+    import sys
+    from pathlib import Path
+
+    from mks_sim.cli import main
+    from mks_sim.models.importer import add_object
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    import _gen_meshes as gen
+
+    mesh = gen.wedge()
+    mesh.apply_scale(1000.0)
+    mesh.export(tmp_path / "wedge.stl")
+    add_object(tmp_path / "wedge.stl", "wedge", tmp_path / "m", units="mm", density=500.0)
+    argv = ["localize", "--scene", "bin", "--object", "wedge", "--all", "--count", "3",
+            "--seed", "5", "--models", str(tmp_path / "m"), "--json"]  # fmt: skip
+    assert main(argv) == 0
+    rec = json.loads(capsys.readouterr().out)
+    # measured: 3 found, 2 within 5 mm / 5 degrees (one wedge flipped end for end)
+    assert rec["object"] == "wedge" and rec["present"] == 3 and rec["correct"] >= 2, rec
+    assert main(argv[:-3] + ["--json"]) != 0  # without the folder: an unknown object

@@ -1,9 +1,11 @@
 """Bin picking from the CLI (issue 13): ``mks-sim localize --all`` and its report.
 
 ``mks-sim localize --scene bin --object part --all [--count N] --seed S --json`` builds the
-bin from the seed, senses once, localizes every instance
+bin from the seed, senses (a second view with the wrist camera when the first is not good
+enough: ``BinPicker.sense``; ``--one-view`` never), localizes every instance
 (:func:`mks_sim.localization.instances.localize_instances`) and evaluates them against the
-ground truth afterwards (``mks_sim.tasks.bin.evaluate_instances``).
+ground truth afterwards (``mks_sim.tasks.bin.evaluate_instances``). ``--models DIR`` adds
+model folders (an object of its own in the bin).
 """
 
 from __future__ import annotations
@@ -26,6 +28,14 @@ def add_all_arguments(parser: argparse.ArgumentParser) -> None:
         "--count", type=int, default=None, metavar="N",
         help="with --all: instances dropped into the bin scene (1..12; default the file's)",
     )  # fmt: skip
+    _add_one_view(parser)
+
+
+def _add_one_view(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--one-view", action="store_true",
+        help="bin: never take a second view with the wrist camera (active sensing off)",
+    )  # fmt: skip
 
 
 def format_all_text(rec: dict[str, Any]) -> str:
@@ -46,6 +56,9 @@ def format_all_text(rec: dict[str, Any]) -> str:
         lines.append(f"  missed {m['instance']} ({100 * m['visible_fraction']:.0f} % visible)")
     served = ", ".join(f"{k} <- {v}" for k, v in sorted(rec["provenance"].items()))
     lines.append(f"logical sensors: {served}")
+    lines.append(f"views: {rec['views']} ({', '.join(rec['view_names'])})")
+    for dev, why in sorted(rec["faults"].items()):
+        lines.append(f"fault: {dev}: {why}")
     lines.append(f"time: {rec['time_s']:.2f} s")
     return "\n".join(lines)
 
@@ -55,8 +68,6 @@ def run_all(args: argparse.Namespace) -> int:
     from mks_sim.devices import DEVICE_NAMES
     from mks_sim.tasks.bin import BIN_SCENE, run_localize_all
 
-    if args.models:
-        raise SpecError("--all: --models is not supported yet; expected database objects")
     unknown = [d for d in args.fail if d not in DEVICE_NAMES]
     if unknown:
         raise SpecError(
@@ -68,6 +79,8 @@ def run_all(args: argparse.Namespace) -> int:
         count=args.count,
         fail=tuple(args.fail),
         scene=args.scene or BIN_SCENE,
+        active=not args.one_view,
+        models=tuple(args.models),
     )
     if args.json:
         print(json.dumps(rec, allow_nan=False))
@@ -94,6 +107,7 @@ def add_task_argument(parser: argparse.ArgumentParser) -> None:
         "--budget", type=int, default=None, metavar="N",
         help="--task clear_bin: picks at most (default 2 x parts + 2)",
     )  # fmt: skip
+    _add_one_view(parser)
 
 
 def run_clear_bin_command(args: argparse.Namespace) -> int:
@@ -114,6 +128,8 @@ def run_clear_bin_command(args: argparse.Namespace) -> int:
         count=args.count,
         fail=tuple(args.fail),
         budget=args.budget,
+        active=not args.one_view,
+        models=tuple(args.models),
     )
     if args.json:
         print(json.dumps(rec, allow_nan=False))
@@ -133,6 +149,8 @@ def format_clear_text(rec: dict[str, Any]) -> str:
         what = "ok" if p["success"] else f"FAILED: {p['failure']}"
         lines.append(
             f"  pick {k + 1}: instance {p['instance']} (score {p['score']:.2f}) {what}; "
-            f"{p['time_s']:.1f} s ({p['perception_s']:.1f} s perception, {p['views']} view)"
+            f"{p['time_s']:.1f} s ({p['perception_s']:.1f} s perception, {p['views']} view(s))"
         )
+    for dev, why in sorted(rec.get("faults", {}).items()):
+        lines.append(f"fault: {dev}: {why}")
     return "\n".join(lines)

@@ -373,6 +373,12 @@ PlanPerturbation = Callable[[int, Any], Any]
 VIEWS_SENSOR = "Fused_Points"
 
 
+def _database_objects() -> list[str]:
+    from mks_sim.models.objects import object_names
+
+    return object_names()
+
+
 def _views_graph() -> Any:
     from mks_sim.workstation import _default_graph
 
@@ -419,14 +425,17 @@ class BinPicker:
         from mks_sim.sim import names
         from mks_sim.tasks.controller import ArmHandController, RobotNames
         from mks_sim.tasks.episode import make_touch_reader
-        from mks_sim.tasks.spec import task_for_object
+        from mks_sim.tasks.spec import GraspAction, task_for_object
 
         self.world = world
         self.devices = devices
         self.rng = np.random.default_rng(0) if rng is None else rng
         self.name = object_name or next(iter(world.scene.models.values()))
         self.obj = load_object(self.name, models=tuple(str(m) for m in models))
-        self.action = task_for_object(self.name).action
+        if models and self.name not in _database_objects():
+            self.action = GraspAction()  # an object of a --models folder: the default action
+        else:
+            self.action = task_for_object(self.name).action
         self.bodies = [b for b, m in world.scene.models.items() if m == self.name]
         self.ctl = ArmHandController(
             world.physics, RobotNames.from_model(world.model), make_touch_reader(devices)
