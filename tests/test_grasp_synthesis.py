@@ -73,10 +73,19 @@ def _check(obj: ObjectModel, T: np.ndarray, cands: list[grasp.GraspCandidate]) -
     tri = obj.mesh.transformed(T).triangles
     clearance = obj.grasp.get("min_clearance_m", grasp.MIN_CLEARANCE_M)
     half_angle = math.atan(mu)
+    tilted_seen = False
     for c in cands:
         contacts = np.asarray(c.contacts_world)  # fingers 2/3, finger 1
         axis = c.axis_world
-        assert abs(axis[2]) < 1e-9  # top-down hand: horizontal closing axis
+        if c.rotation_world is None:
+            assert not tilted_seen, "a top-down candidate after a tilted one"
+            assert abs(axis[2]) < 1e-9  # top-down hand: horizontal closing axis
+        else:
+            tilted_seen = True
+            _check_tilted(c, TABLE_Z)
+            d = contacts[1] - contacts[0]
+            assert np.linalg.norm(d) == pytest.approx(c.width_m, abs=1e-9)
+            assert np.linalg.norm(np.cross(d, axis)) < 1e-9 and d @ axis > 0
         # On the surface, and every face there has its inward normal within the friction
         # cone of the closing force (+axis at fingers 2/3, -axis at finger 1).
         for k, direction in ((0, axis), (1, -axis)):
@@ -84,6 +93,9 @@ def _check(obj: ObjectModel, T: np.ndarray, cands: list[grasp.GraspCandidate]) -
             assert len(normals), f"contact {contacts[k]} is not on the surface"
             angles = np.arccos(np.clip(-normals @ direction, -1, 1))
             assert np.all(angles <= half_angle + 1e-6), np.degrees(angles)
+        assert grasp.MIN_WIDTH_M <= c.width_m <= float(grasp.PAD_APERTURE_M[0]) - 0.035
+        if c.rotation_world is not None:
+            continue
         # The line of the contacts is the closing axis; the width fits the opening.
         d = contacts[1] - contacts[0]
         assert np.linalg.norm(d[:2]) == pytest.approx(c.width_m, abs=1e-9)
@@ -94,6 +106,23 @@ def _check(obj: ObjectModel, T: np.ndarray, cands: list[grasp.GraspCandidate]) -
         # Above the table.
         assert c.pinch_world[2] >= TABLE_Z + clearance - 1e-9
         assert np.all(contacts[:, 2] > TABLE_Z)
+
+
+def _check_tilted(c: grasp.GraspCandidate, table_z: float) -> None:
+    """A tilted candidate's hand: a rotation whose x axis is the closing axis, whose z axis
+    (the approach) is within MAX_TILT_DEG of straight down, the pinch point 8 mm back along
+    it from the contacts' midpoint, and the open fingertips above the table."""
+    H = np.asarray(c.rotation_world)
+    assert H @ H.T == pytest.approx(np.eye(3), abs=1e-9) and np.linalg.det(H) == pytest.approx(1)
+    approach = H[:, 2]
+    tilt = math.degrees(math.acos(-approach[2]))
+    assert tilt <= grasp.MAX_TILT_DEG + 1e-6 and tilt == pytest.approx(c.tilt_deg)
+    mid = np.mean(np.asarray(c.contacts_world), axis=0)
+    assert np.asarray(c.pinch_world) == pytest.approx(mid - 0.008 * approach, abs=1e-9)
+    half = (c.width_m + grasp.PRESHAPE_MARGIN_M) / 2
+    for x, y in zip((half, -half, -half), grasp.FINGERTIPS_Y, strict=True):
+        tip = np.asarray(c.pinch_world) + H @ np.array([x, y, grasp.FINGERTIP_DROP_M])
+        assert tip[2] >= table_z + grasp.TILT_TIP_ABOVE_TABLE_M - 1e-9
 
 
 @pytest.mark.parametrize("name", sorted(MESHES))
@@ -116,10 +145,14 @@ def test_a_narrow_friction_cone_admits_only_opposed_faces() -> None:
     obj_slippery = _object(box_mesh((0.05, 0.05, 0.05)), mu=0.2)
     R = Rotation.from_euler("x", 20, degrees=True).as_matrix()
     T = _resting(obj_slippery.mesh, R, (0.0, 0.0))
-    slippery = synthesize_grasps(obj_slippery, T, table_z=TABLE_Z)
+    slippery = synthesize_grasps(obj_slippery, T, table_z=TABLE_Z, max_tilt_deg=0)
     assert slippery
     for c in slippery:  # the closing axis within the 11-degree cone of the x faces' normals
         assert abs(c.axis_world[0]) >= math.cos(math.atan(0.2)) - 1e-9
+    # A tilted hand closes along the y faces' normals (20 degrees from horizontal) instead.
+    normal_y = R[:, 1]
+    tilted = [c for c in synthesize_grasps(obj_slippery, T, table_z=TABLE_Z) if c.rotation_world]
+    assert any(abs(c.axis_world @ normal_y) >= math.cos(math.atan(0.2)) for c in tilted)
     grippy = synthesize_grasps(
         _object(obj_slippery.mesh, mu=1.0), T, table_z=TABLE_Z, max_candidates=500
     )
@@ -174,6 +207,7 @@ def test_deterministic_for_a_seed_and_ranked_by_cost_then_wrist_turn() -> None:
     a = synthesize_grasps(obj, T, table_z=TABLE_Z, rng=np.random.default_rng(5))
     b = synthesize_grasps(obj, T, table_z=TABLE_Z, rng=np.random.default_rng(5))
     assert a == b
+    a = [c for c in a if c.rotation_world is None]  # the tilted ones follow, by cost
     best = min(c.cost for c in a)
     near = [c for c in a if c.cost <= best + grasp.COST_TOLERANCE_M]
     assert a[: len(near)] == sorted(near, key=lambda c: abs(c.yaw_rad))
@@ -189,3 +223,82 @@ def test_too_wide_or_too_thin_gives_no_grasp_and_errors() -> None:
     bad = _object(box_mesh((0.05, 0.05, 0.05)), min_clearance_m="low")  # type: ignore[arg-type]
     with pytest.raises(SpecError, match="grasp hint 'min_clearance_m': expected a number"):
         synthesize_grasps(bad, _resting(bad.mesh, np.eye(3), (0, 0)), table_z=TABLE_Z)
+
+
+@pytest.mark.parametrize("euler", [(30, 150, 0), (100, 35, 0), (0, 200, 40)])
+def test_a_tumbled_part_gets_tilted_antipodal_grasps(euler: tuple[int, int, int]) -> None:
+    """The part tumbled (on its side, upside down and leaning): tilted candidates exist and
+    each is antipodal on the mesh (brute force over its triangles, in 3-D), fits the hand and
+    keeps its fingertips above the table."""
+    from mks_sim.models.objects import load_object
+
+    part = load_object("part")
+    R = Rotation.from_euler("xyz", euler, degrees=True).as_matrix()
+    T = _resting(part.mesh, R, (0.0, 0.1))
+    cands = synthesize_grasps(part, T, table_z=TABLE_Z)
+    tilted = [c for c in cands if c.rotation_world is not None]
+    assert tilted, f"no tilted grasp of the part at {euler}"
+    _check(part, T, cands)
+    tri = part.mesh.transformed(T).triangles
+    half_angle = math.atan(part.friction[0])
+    for c in tilted:
+        axis = c.axis_world
+        for k, direction in ((0, axis), (1, -axis)):
+            normals = _faces_containing(tri, np.asarray(c.contacts_world[k]))
+            assert len(normals)
+            angles = np.arccos(np.clip(-normals @ direction, -1, 1))
+            assert np.all(angles <= half_angle + 1e-6), np.degrees(angles)
+
+
+def test_the_part_on_its_side_has_no_top_down_grasp_but_tilted_ones() -> None:
+    """Leaning 150 degrees over (measured: no horizontal antipodal pair passes the pads'
+    support), only a tilted approach grasps it; max_tilt_deg=0 restores top-down only."""
+    from mks_sim.models.objects import load_object
+
+    part = load_object("part")
+    R = Rotation.from_euler("xyz", (30, 150, 0), degrees=True).as_matrix()
+    T = _resting(part.mesh, R, (0.0, 0.1))
+    assert synthesize_grasps(part, T, table_z=TABLE_Z, max_tilt_deg=0) == []
+    assert synthesize_grasps(part, T, table_z=TABLE_Z)
+
+
+@pytest.mark.parametrize("name", sorted(MESHES))
+def test_top_down_grasps_come_first_and_are_unchanged(name: str) -> None:
+    """The tilted pass adds candidates after the top-down ones and leaves those as they were
+    (same rng draws): the single-object grasps do not change."""
+    obj = _object(MESHES[name]())
+    R = Rotation.from_euler("z", 40, degrees=True).as_matrix()
+    T = _resting(obj.mesh, R, (0.05, 0.0))
+    only = synthesize_grasps(obj, T, table_z=TABLE_Z, rng=np.random.default_rng(3), max_tilt_deg=0)
+    both = synthesize_grasps(obj, T, table_z=TABLE_Z, rng=np.random.default_rng(3))
+    assert only and both[: len(only)] == only
+    assert all(c.rotation_world is not None for c in both[len(only) :])
+
+
+def test_tilted_fingers_and_palm_keep_clear_of_sensed_points() -> None:
+    """A wall of sensed points beside a leaning box: no tilted candidate sweeps a fingertip
+    within FINGER_CLEARANCE_M of it (brute force over the approach line) or swings its palm
+    through it."""
+    obj = _object(box_mesh((0.05, 0.04, 0.06)))
+    R = Rotation.from_euler("y", 35, degrees=True).as_matrix()
+    T = _resting(obj.mesh, R, (0.0, 0.0))
+    gy, gz = np.meshgrid(np.linspace(-0.1, 0.1, 41), np.linspace(TABLE_Z, TABLE_Z + 0.1, 21))
+    wall = np.column_stack([np.full(gy.size, 0.07), gy.ravel(), gz.ravel()])
+
+    def sweep_distance(c: grasp.GraspCandidate) -> float:
+        H = np.asarray(c.rotation_world)
+        half = (c.width_m + grasp.PRESHAPE_MARGIN_M) / 2
+        gaps = []
+        for x, y in zip((half, -half, -half), grasp.FINGERTIPS_Y, strict=True):
+            for back in np.linspace(0.0, grasp.SWEEP_BACK_M, 80):
+                p = np.asarray(c.pinch_world) + H @ np.array([x, y, grasp.FINGERTIP_DROP_M - back])
+                gaps.append(np.min(np.linalg.norm(wall - p, axis=1)))
+        return float(min(gaps))
+
+    free = [c for c in synthesize_grasps(obj, T, table_z=TABLE_Z, max_tilted=200)
+            if c.rotation_world]  # fmt: skip
+    assert any(sweep_distance(c) < grasp.FINGER_CLEARANCE_M - 2e-3 for c in free)
+    walled = [c for c in synthesize_grasps(obj, T, table_z=TABLE_Z, obstacles=wall, max_tilted=200)
+              if c.rotation_world]  # fmt: skip
+    assert walled
+    assert all(sweep_distance(c) >= grasp.FINGER_CLEARANCE_M - 1e-3 for c in walled)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 from dm_control.utils import inverse_kinematics as ik
+from scipy.spatial.transform import Rotation, Slerp
 
 from mks_sim.errors import NotFound
 
@@ -106,6 +107,13 @@ def quat_down(yaw: float) -> np.ndarray:
     R = np.stack([x, np.cross(z, x), z], axis=1)
     q = np.empty(4)
     mujoco.mju_mat2Quat(q, R.ravel())
+    return q
+
+
+def quat_of(rotation: np.ndarray) -> np.ndarray:
+    """(4,) wxyz quaternion of a rotation matrix (3, 3) (a tilted hand's orientation)."""
+    q = np.empty(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(rotation, dtype=float).ravel())
     return q
 
 
@@ -194,6 +202,10 @@ class ArmHandController:
         """(3,) pinch-site position, world frame, metres (the robot's own forward kinematics)."""
         return self._d.site_xpos[self._site].copy()
 
+    def pinch_rotation(self) -> np.ndarray:
+        """(3, 3) pinch-site rotation in the world (columns: closing axis, across, approach)."""
+        return self._d.site_xmat[self._site].reshape(3, 3).copy()
+
     def pinch_yaw(self) -> float:
         """Yaw of the pinch site's closing (x) axis about world z, radians."""
         R = self._d.site_xmat[self._site].reshape(3, 3)
@@ -201,9 +213,15 @@ class ArmHandController:
 
     # -- IK ------------------------------------------------------------------------------
     def solve_ik(
-        self, pos: np.ndarray, yaw: float, max_steps: int = 200
+        self,
+        pos: np.ndarray,
+        yaw: float,
+        max_steps: int = 200,
+        rotation: np.ndarray | None = None,
     ) -> tuple[np.ndarray, bool]:
-        """Joint angles (6,) putting the pinch site at ``pos`` pointing down at ``yaw``.
+        """Joint angles (6,) putting the pinch site at ``pos`` pointing down at ``yaw``, or at
+        the orientation ``rotation`` (3, 3; columns: closing axis, across, approach) when
+        given (a tilted grasp).
 
         Warm-started at the current joints; unlimited joints are unwrapped to the nearest
         turn so the arm never spins a full revolution. Returns (q, converged).
@@ -212,7 +230,7 @@ class ArmHandController:
             self.physics,
             self.names.pinch_site,
             target_pos=np.asarray(pos, dtype=float),
-            target_quat=quat_down(yaw),
+            target_quat=quat_down(yaw) if rotation is None else quat_of(rotation),
             joint_names=list(self.names.arm_joints),
             tol=1e-6,
             max_steps=max_steps,
@@ -279,9 +297,16 @@ class ArmHandController:
         mujoco.mj_forward(self._m, self._d)
 
     def move_to(
-        self, pos: np.ndarray, yaw: float, spacing_m: float = 0.01, steps_per_wp: int = 3
+        self,
+        pos: np.ndarray,
+        yaw: float,
+        spacing_m: float = 0.01,
+        steps_per_wp: int = 3,
+        rotation: np.ndarray | None = None,
     ) -> bool:
-        """Move the pinch site in a straight line to ``pos`` at ``yaw``.
+        """Move the pinch site in a straight line to ``pos`` at ``yaw`` (pointing down), or
+        to the orientation ``rotation`` (3, 3) when given: turned from the current one
+        along the way (spherical interpolation), ``yaw`` then unused.
 
         Returns:
             False when IK fails for a waypoint, the arm does not reach the end, or
@@ -296,9 +321,17 @@ class ArmHandController:
         n = max(1, int(math.ceil(np.linalg.norm(pos - start) / spacing_m)))
         yaw0 = self.pinch_yaw()
         dyaw = (yaw - yaw0 + math.pi) % (2 * math.pi) - math.pi
+        turn = None
+        if rotation is not None:
+            ends = Rotation.from_matrix(np.stack([self.pinch_rotation(), np.asarray(rotation)]))
+            turn = Slerp([0.0, 1.0], ends)
         ok = True
         for s in np.linspace(0.0, 1.0, n + 1)[1:]:
-            q, converged = self.solve_ik(start + (pos - start) * s, yaw0 + dyaw * s)
+            if turn is None:
+                q, converged = self.solve_ik(start + (pos - start) * s, yaw0 + dyaw * s)
+            else:
+                R = turn([s]).as_matrix()[0]
+                q, converged = self.solve_ik(start + (pos - start) * s, yaw, rotation=R)
             if not converged:
                 logger.debug("IK did not converge for waypoint %s", start + (pos - start) * s)
                 ok = False
@@ -328,11 +361,13 @@ class ArmHandController:
         recentre: int = 2,
         recentre_step_m: float = 0.012,
         yaw: float | None = None,
+        rotation: np.ndarray | None = None,
     ) -> CloseResult:
         """Close until the pads of both sides report contact (or the fingers stop).
 
         When only one side touches after the fingers stopped, the hand opens, shifts
-        ``recentre_step_m`` toward the touching side along its closing axis, and closes
+        ``recentre_step_m`` toward the touching side along its closing axis (horizontal at
+        ``yaw``, or the x axis of ``rotation`` for a tilted hand, which it keeps), and closes
         again (at most ``recentre`` times).
         """
         recentred = 0
@@ -360,10 +395,13 @@ class ArmHandController:
                 return res
             recentred += 1
             y = self.pinch_yaw() if yaw is None else yaw
-            direction = np.array([math.cos(y), math.sin(y), 0.0]) * (1.0 if a else -1.0)
+            axis = np.array([math.cos(y), math.sin(y), 0.0])
+            if rotation is not None:
+                axis = np.asarray(rotation, dtype=float)[:, 0]
+            direction = axis * (1.0 if a else -1.0)
             logger.debug("one-sided contact (finger 1: %s); re-centring", a)
             self.preshape(float(np.min(self.finger_qpos())) - 0.3, 15)
-            self.move_to(self.pinch_pos() + recentre_step_m * direction, y)
+            self.move_to(self.pinch_pos() + recentre_step_m * direction, y, rotation=rotation)
 
     def touch(self) -> np.ndarray:
         """(3,) fingertip pad readings (N) of fingers 1, 2, 3; nan for a failed pad."""

@@ -44,8 +44,11 @@ __all__ = [
     "FINGERTIPS_XY",
     "GraspCandidate",
     "GraspPlan",
+    "MAX_TILT_DEG",
+    "down_rotation",
     "finger_collisions",
     "fingertips_xy",
+    "hand_rotation",
     "plan_grasp",
     "preshape_q",
     "synthesize_grasps",
@@ -53,16 +56,36 @@ __all__ = [
 ]
 
 
+Rotation3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
+
+
+def down_rotation(yaw: float) -> np.ndarray:
+    """(3, 3) pinch-site rotation of a top-down hand: z (approach) = -world z, the closing
+    (x) axis at ``yaw`` about world z (the rotation of ``controller.quat_down(yaw)``)."""
+    x = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+    z = np.array([0.0, 0.0, -1.0])
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def hand_rotation(yaw: float, rotation: Rotation3 | None) -> np.ndarray:
+    """(3, 3) the hand's rotation: ``rotation`` when given, else top-down at ``yaw``."""
+    return down_rotation(yaw) if rotation is None else np.asarray(rotation, dtype=float)
+
+
 @dataclass(frozen=True)
 class GraspPlan:
-    """A top-down grasp the controller executes.
+    """A grasp the controller executes: top-down at a yaw, or tilted (a full rotation).
 
     Attributes:
         grasp_point_world: (3,) where the pinch point closes, metres, world frame.
-        yaw_rad: yaw of the closing axis (the pinch site's x axis) about world z, radians.
+        yaw_rad: yaw of the closing axis (the pinch site's x axis) about world z, radians
+            (of its horizontal projection for a tilted grasp).
         width_m: the object's width between the fingers, metres.
-        approach_height_m: pre-grasp height above the grasp point, metres.
-        lift_height_m: how far to lift, metres.
+        approach_height_m: pre-grasp distance back along the approach, metres.
+        lift_height_m: how far to lift (straight up), metres.
+        rotation_world: (3, 3) row-major pinch-site rotation for a tilted grasp (columns:
+            closing axis, across, approach); None for a top-down grasp (:func:`down_rotation`
+            of ``yaw_rad``).
 
     The hand descends pre-shaped to ``width_m`` plus ``PRESHAPE_MARGIN_M``
     (:attr:`preshape_q`).
@@ -73,11 +96,36 @@ class GraspPlan:
     width_m: float
     approach_height_m: float
     lift_height_m: float
+    rotation_world: Rotation3 | None = None
+
+    @property
+    def tilted(self) -> bool:
+        """The approach is not straight down (the plan carries a full hand rotation)."""
+        return self.rotation_world is not None
+
+    @property
+    def hand_rotation(self) -> np.ndarray:
+        """(3, 3) pinch-site rotation in the world (columns: closing axis, across, approach)."""
+        return hand_rotation(self.yaw_rad, self.rotation_world)
+
+    @property
+    def target_rotation(self) -> np.ndarray | None:
+        """The rotation to pass the controller's moves (``rotation=``): the hand rotation of
+        a tilted grasp, None for a top-down one (the moves then follow ``yaw_rad``)."""
+        return None if self.rotation_world is None else self.hand_rotation
+
+    @property
+    def approach_world(self) -> np.ndarray:
+        """(3,) unit direction the hand descends along ((0, 0, -1) for a top-down grasp)."""
+        return self.hand_rotation[:, 2]
 
     @property
     def pregrasp_world(self) -> np.ndarray:
-        """(3,) the pre-grasp pinch point, straight above the grasp point."""
-        return np.asarray(self.grasp_point_world) + np.array([0.0, 0.0, self.approach_height_m])
+        """(3,) the pre-grasp pinch point, ``approach_height_m`` back along the approach
+        (straight above the grasp point for a top-down grasp)."""
+        if self.rotation_world is None:
+            return np.asarray(self.grasp_point_world) + np.array([0.0, 0.0, self.approach_height_m])
+        return np.asarray(self.grasp_point_world) - self.approach_height_m * self.approach_world
 
     @property
     def preshape_q(self) -> float:
@@ -104,6 +152,8 @@ class GraspCandidate:
             perfect antipodal pair, ``cos(atan(mu))`` the edge of the friction cone.
         com_distance_m: distance from the centre of mass to the line of the contacts.
         cost: ranking cost (metres; lower is better).
+        rotation_world: (3, 3) row-major pinch-site rotation of a tilted grasp (the closing
+            axis not horizontal or the approach not vertical); None: top-down at ``yaw_rad``.
     """
 
     pinch_world: tuple[float, float, float]
@@ -114,11 +164,25 @@ class GraspCandidate:
     antipodal: float
     com_distance_m: float
     cost: float
+    rotation_world: Rotation3 | None = None
+
+    @property
+    def hand_rotation(self) -> np.ndarray:
+        """(3, 3) pinch-site rotation in the world (columns: closing axis, across, approach)."""
+        return hand_rotation(self.yaw_rad, self.rotation_world)
 
     @property
     def axis_world(self) -> np.ndarray:
-        """(3,) the closing direction (from fingers 2/3 toward finger 1), unit, horizontal."""
-        return np.array([math.cos(self.yaw_rad), math.sin(self.yaw_rad), 0.0])
+        """(3,) the closing direction (from fingers 2/3 toward finger 1), unit; horizontal
+        for a top-down grasp."""
+        if self.rotation_world is None:
+            return np.array([math.cos(self.yaw_rad), math.sin(self.yaw_rad), 0.0])
+        return self.hand_rotation[:, 0]
+
+    @property
+    def tilt_deg(self) -> float:
+        """Angle between the approach and straight down, degrees."""
+        return float(np.degrees(np.arccos(np.clip(-self.hand_rotation[2, 2], -1.0, 1.0))))
 
     def plan(self, action: GraspAction) -> GraspPlan:
         """The executable plan with the task's approach and lift heights."""
@@ -128,6 +192,7 @@ class GraspCandidate:
             width_m=self.width_m,
             approach_height_m=action.approach_height_m,
             lift_height_m=action.lift_height_m,
+            rotation_world=self.rotation_world,
         )
 
 
@@ -178,6 +243,20 @@ PAIR_DZ_M = 0.0025  # the two contacts of a pair differ at most this much in hei
 SAMPLE_SPACING_M = 0.0012  # the dense surface sample the pad probes query
 PROBE_TOL_M = 0.002
 PROBE_NORMAL_COS = math.cos(math.radians(35.0))
+# Tilted grasps (a part on its side or upside down has no horizontal antipodal pair): the
+# approach at most this far from straight down (the bin's walls are 40 mm high, the hand
+# comes from above them), ranked behind the top-down ones.
+MAX_TILT_DEG = 45.0
+MAX_TILTED = 12
+TILT_WEIGHT_M = 0.02  # ranking cost of a grasp tilted by MAX_TILT_DEG
+TILT_ROLLS_DEG = (0.0, -20.0, 20.0, -40.0, 40.0)  # approaches rolled about the closing axis
+TILT_TIP_ABOVE_TABLE_M = 0.002  # a tilted hand's lowest open fingertip above the table
+SWEEP_BACK_M = 0.16  # the sweep starts this far back along the approach (pre-grasp 12 cm)
+PALM_START_M = 0.05  # the palm begins this far back from the pinch point
+PALM_RADIUS_M = 0.035
+TILT_SAMPLES = 240  # surface points drawn for the tilted pairs
+TILT_PAIRS = 1500  # contact pairs (the cheapest) expanded into tilted candidates
+TILT_CHECKED = 480  # the costly checks run on at most this many distinct tilted candidates
 
 
 def preshape_q(width_m: float, margin_m: float = PRESHAPE_MARGIN_M) -> float:
@@ -285,8 +364,10 @@ def synthesize_grasps(
     preferred_yaw: float = 0.0,
     n_samples: int = 300,
     max_candidates: int = 24,
+    max_tilt_deg: float = MAX_TILT_DEG,
+    max_tilted: int = MAX_TILTED,
 ) -> list[GraspCandidate]:
-    """Top-down antipodal grasps of ``obj`` at ``object_to_world``, best first.
+    """Antipodal grasps of ``obj`` at ``object_to_world``: top-down first, then tilted.
 
     Args:
         obj: the model-database object (its ``mesh`` in metres, body frame; ``friction[0]``
@@ -300,11 +381,15 @@ def synthesize_grasps(
         preferred_yaw: yaw (rad) the hand would rather keep (its current one); yaws are
             returned unwrapped to the nearest turn of it.
         n_samples: surface points drawn for pairing.
-        max_candidates: at most this many candidates (distinct contact pairs, each in both
-            closing directions).
+        max_candidates: at most this many top-down candidates (distinct contact pairs, each
+            in both closing directions).
+        max_tilt_deg: tilted grasps approach at most this far from straight down (0: top-down
+            only); their closing axis may leave the horizontal (:func:`_tilted_grasps`).
+        max_tilted: at most this many tilted candidates.
 
     Returns:
-        Candidates, best first; empty when no pair passes the filters.
+        Candidates: the top-down ones best first, then the tilted ones best first (a
+        candidate with ``rotation_world`` set); empty when no pair passes the filters.
 
     Raises:
         DataError: the pose is not a finite 4x4 matrix.
@@ -344,8 +429,21 @@ def synthesize_grasps(
     a_j = np.einsum("pk,pk->p", d, n_world[jj, :2])  # inward normal at j along -d
     ok = (w >= MIN_WIDTH_M) & (w <= MAX_WIDTH_M) & (a_i >= cos_cone) & (a_j >= cos_cone)
     ii, jj, d, a_i, a_j, pair_width = ii[ok], jj[ok], d[ok], a_i[ok], a_j[ok], w[ok]
+    obs = np.zeros((0, 3))
+    if obstacles is not None and len(obstacles):
+        obs = np.asarray(obstacles, dtype=float).reshape(-1, 3)
+        obs = obs[np.all(np.isfinite(obs), axis=1)]
+    own = dense[:: max(1, len(dense) // 2000)] @ R.T + t  # (<= 4000, 3)
+    own = own[own[:, 2] > table_z + 0.002]
+    tilted: list[GraspCandidate] = []
+    if max_tilt_deg > 0 and max_tilted > 0:
+        tilted = _tilted_grasps(
+            obj, R, t, table_z=table_z, own=own, obs=obs, cos_cone=cos_cone,
+            max_tilt=math.radians(max_tilt_deg), n_samples=n_samples,
+            preferred_yaw=preferred_yaw, limit=max_tilted,
+        )  # fmt: skip
     if len(ii) == 0:
-        return []
+        return tilted
     antipodal = np.minimum(a_i, a_j)
     mid = 0.5 * (p_world[ii] + p_world[jj])  # pad-centre line midpoint
     axis = np.column_stack([d, np.zeros(len(ii))])
@@ -362,12 +460,6 @@ def synthesize_grasps(
     f23 = np.concatenate([ii, jj])  # fingers 2/3's contact
     pinch = mid[src] + np.array([0.0, 0.0, PAD_CENTRE_BELOW_M])
     aperture = pair_width[src] + PRESHAPE_MARGIN_M
-    own = dense[:: max(1, len(dense) // 2000)] @ R.T + t  # (<= 4000, 3)
-    own = own[own[:, 2] > table_z + 0.002]
-    obs = np.zeros((0, 3))
-    if obstacles is not None and len(obstacles):
-        obs = np.asarray(obstacles, dtype=float).reshape(-1, 3)
-        obs = obs[np.all(np.isfinite(obs), axis=1)]
     # The costly checks run on distinct candidates, cheapest first, a batch at a time.
     order = _distinct(np.arange(2 * K), pinch, yaw, cost[src], 2 * K)
     kept: list[int] = []
@@ -395,7 +487,176 @@ def synthesize_grasps(
         )
         for k in sel
     ]
-    return _by_wrist_turn(out, preferred_yaw)
+    return _by_wrist_turn(out, preferred_yaw) + tilted
+
+
+def _tilted_grasps(
+    obj: ObjectModel,
+    R: np.ndarray,
+    t: np.ndarray,
+    *,
+    table_z: float,
+    own: np.ndarray,
+    obs: np.ndarray,
+    cos_cone: float,
+    max_tilt: float,
+    n_samples: int,
+    preferred_yaw: float,
+    limit: int,
+) -> list[GraspCandidate]:
+    """Grasps whose approach leaves the vertical (at most ``max_tilt`` rad), best first.
+
+    Contact pairs at any height difference whose closing axis rises at most ``max_tilt``
+    (both inward normals in the friction cone around it, in 3-D); the hand approaches
+    perpendicular to the closing axis, as near to straight down as it can
+    (:data:`TILT_ROLLS_DEG`: also rolled about the closing axis). The fingertips must stay
+    :data:`TILT_TIP_ABOVE_TABLE_M` above the table and sweep clear of the object's own
+    surface and of the obstacles along the approach; the palm (:data:`PALM_START_M` back
+    along the approach) clear of the obstacles; both pads supported (their top edge toward
+    the palm). Ranked by the top-down cost plus :data:`TILT_WEIGHT_M` per ``max_tilt`` of
+    tilt. Pairs at the same height approached straight down are the top-down path's.
+    """
+    mesh = obj.mesh
+    dense, dense_n, _ = _dense_surface(mesh)
+    p_all = dense @ R.T + t
+    n_all = dense_n @ R.T
+    sin_n = math.sin(min(max_tilt + math.acos(cos_cone), math.pi / 2))
+    keep = np.flatnonzero((np.abs(n_all[:, 2]) <= sin_n + 1e-12) & (p_all[:, 2] > table_z + 0.003))
+    if len(keep) < 2:
+        return []
+    # a fixed stream: the caller's rng draws the same for the top-down grasps as before
+    size = min(n_samples, TILT_SAMPLES, len(keep))
+    keep = np.random.default_rng(1).choice(keep, size=size, replace=False)
+    p_w, n_w = p_all[keep], n_all[keep]
+    ii, jj = np.triu_indices(len(p_w), k=1)
+    D = p_w[jj] - p_w[ii]
+    w = np.linalg.norm(D, axis=1)
+    d = D / np.maximum(w, 1e-12)[:, None]
+    a_i = -np.einsum("pk,pk->p", d, n_w[ii])
+    a_j = np.einsum("pk,pk->p", d, n_w[jj])
+    ok = (w >= MIN_WIDTH_M) & (w <= MAX_WIDTH_M) & (a_i >= cos_cone) & (a_j >= cos_cone)
+    ok &= np.abs(d[:, 2]) <= math.sin(max_tilt)
+    ok = np.flatnonzero(ok)
+    if len(ok) == 0:
+        return []
+    dz = D[ok, 2]
+    ii, jj, d, w, anti = ii[ok], jj[ok], d[ok], w[ok], np.minimum(a_i, a_j)[ok]
+    down = np.array([0.0, 0.0, -1.0])
+    a0 = down - (d @ down)[:, None] * d
+    a0 /= np.linalg.norm(a0, axis=1, keepdims=True)
+    b0 = np.cross(d, a0)
+    mid = 0.5 * (p_w[ii] + p_w[jj])
+    com = R @ mesh.centroid + t
+    rel = com - mid
+    com_dist = np.linalg.norm(rel - np.sum(rel * d, axis=1)[:, None] * d, axis=1)
+    base = com_dist + ANTIPODAL_WEIGHT_M * (1.0 - anti) / (1.0 - cos_cone + 1e-12)
+    if len(base) > TILT_PAIRS:  # a round object pairs almost everything: the best suffice
+        best = np.argpartition(base, TILT_PAIRS)[:TILT_PAIRS]
+        ii, jj, d, w, anti, dz = ii[best], jj[best], d[best], w[best], anti[best], dz[best]
+        a0, b0, mid = a0[best], b0[best], mid[best]
+        com_dist, base = com_dist[best], base[best]
+    flat = np.abs(dz) <= PAIR_DZ_M  # the top-down path's pairs
+    # every (pair, roll, closing direction)
+    src, xs, zs = [], [], []
+    for roll in np.radians(TILT_ROLLS_DEG):
+        a = math.cos(roll) * a0 + math.sin(roll) * b0
+        tilt = np.arccos(np.clip(-a[:, 2], -1.0, 1.0))
+        k = np.flatnonzero((tilt <= max_tilt + 1e-9) & ~(flat & (abs(roll) < 1e-9)))
+        for sign in (1.0, -1.0):
+            src.append(k)
+            xs.append(sign * d[k])
+            zs.append(a[k])
+    if not sum(len(k) for k in src):
+        return []
+    sidx = np.concatenate(src)
+    x = np.concatenate(xs)
+    z = np.concatenate(zs)
+    hand = np.stack([x, np.cross(z, x), z], axis=2)  # (C, 3, 3) columns x, y, z
+    tilt = np.arccos(np.clip(-z[:, 2], -1.0, 1.0))
+    cost = base[sidx] + TILT_WEIGHT_M * tilt / max_tilt
+    pinch = mid[sidx] - PAD_CENTRE_BELOW_M * z
+    forward = np.einsum("ck,ck->c", x, d[sidx]) > 0  # finger 1 on j
+    f1 = np.where(forward, jj[sidx], ii[sidx])
+    f23 = np.where(forward, ii[sidx], jj[sidx])
+    aperture = w[sidx] + PRESHAPE_MARGIN_M
+    yaw = np.arctan2(x[:, 1], x[:, 0])
+    # the open fingertips stay above the table (cheap: first, on every candidate)
+    tips_w = pinch[:, None] + np.einsum("kij,ktj->kti", hand, _tips_hand(aperture))
+    low_ok = np.flatnonzero(tips_w[:, :, 2].min(axis=1) >= table_z + TILT_TIP_ABOVE_TABLE_M)
+    if len(low_ok) == 0:
+        return []
+    order = _distinct(low_ok, pinch, yaw, cost, TILT_CHECKED)
+    own_tree = cKDTree(own) if len(own) else None
+    obs_tree = cKDTree(obs) if len(obs) else None
+    kept: list[int] = []
+    start, batch = 0, 2 * limit
+    while start < len(order) and len(kept) < limit:
+        b = order[start : start + batch]
+        start, batch = start + batch, 2 * batch
+        b = b[_pads_supported(mesh, R, t, p_w, n_w, f1[b], f23[b], yaw[b], hand[b])]
+        tips = _tips_hand(aperture[b])  # (k, 3, 3) hand frame
+        ok = ~_sweep_hits(hand[b], pinch[b], tips, own_tree, SELF_CLEARANCE_M)
+        ok &= ~_sweep_hits(hand[b], pinch[b], tips, obs_tree, FINGER_CLEARANCE_M)
+        ok &= ~_palm_hits(hand[b], pinch[b], obs_tree)
+        kept.extend(int(k) for k in b[ok])
+    return [
+        GraspCandidate(
+            pinch_world=tuple(float(v) for v in pinch[k]),  # type: ignore[arg-type]
+            yaw_rad=float(preferred_yaw + wrap_angle(yaw[k] - preferred_yaw)),
+            width_m=float(w[sidx[k]]),
+            contacts_world=(tuple(map(float, p_w[f23[k]])), tuple(map(float, p_w[f1[k]]))),  # type: ignore[arg-type]
+            normals_world=(tuple(map(float, n_w[f23[k]])), tuple(map(float, n_w[f1[k]]))),  # type: ignore[arg-type]
+            antipodal=float(anti[sidx[k]]),
+            com_distance_m=float(com_dist[sidx[k]]),
+            cost=float(cost[k]),
+            rotation_world=tuple(tuple(float(v) for v in row) for row in hand[k]),  # type: ignore[arg-type]
+        )
+        for k in kept[:limit]
+    ]
+
+
+def _tips_hand(aperture: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) the open fingertips' lowest points in the pinch-site frame (z = approach)."""
+    half = aperture / 2
+    lx = np.stack([half, -half, -half], axis=1)
+    ly = np.broadcast_to(FINGERTIPS_Y, lx.shape)
+    return np.stack([lx, ly, np.full(lx.shape, FINGERTIP_DROP_M)], axis=2)
+
+
+def _chain_hits(
+    starts: np.ndarray, direction: np.ndarray, lengths: tuple[float, float], tree: cKDTree | None,
+    radius: float, spacing: float = 0.005,
+) -> np.ndarray:
+    """(K,) some point of ``tree`` lies within ``radius`` of one of the segments
+    ``starts[k, l] + s * direction[k]``, ``s`` in ``lengths`` (K, L, 3 starts; balls every
+    ``spacing`` along them, their radius grown to cover the cylinder between them)."""
+    K = len(starts)
+    if tree is None or K == 0:
+        return np.zeros(K, dtype=bool)
+    s = np.arange(lengths[0], lengths[1] + 1e-9, spacing)
+    q = starts[:, :, None, :] + s[None, None, :, None] * direction[:, None, None, :]
+    d, _ = tree.query(q.reshape(-1, 3), distance_upper_bound=math.hypot(radius, spacing / 2))
+    return np.any(np.isfinite(d).reshape(K, -1), axis=1)
+
+
+def _sweep_hits(
+    hand: np.ndarray, pinch: np.ndarray, tips: np.ndarray, tree: cKDTree | None, radius: float
+) -> np.ndarray:
+    """(K,) a descent along each hand's approach would put a fingertip on a point of
+    ``tree``: within ``radius`` of a fingertip's line, not beyond its lowest reach and at most
+    :data:`SWEEP_BACK_M` back (the general form of the top-down ``_tip_hits``)."""
+    tips_w = pinch[:, None] + np.einsum("kij,ktj->kti", hand, tips)  # lowest points
+    back = -hand[:, :, 2]  # toward the palm
+    return _chain_hits(tips_w, back, (0.0, SWEEP_BACK_M + FINGERTIP_DROP_M), tree, radius)
+
+
+def _palm_hits(hand: np.ndarray, pinch: np.ndarray, tree: cKDTree | None) -> np.ndarray:
+    """(K,) a point of ``tree`` within :data:`PALM_RADIUS_M` of the palm's axis (from
+    :data:`PALM_START_M` to :data:`SWEEP_BACK_M` back along the approach): a tilted hand
+    swings its palm over what lies beside the object."""
+    back = -hand[:, :, 2]
+    return _chain_hits(pinch[:, None], back, (PALM_START_M, SWEEP_BACK_M), tree, PALM_RADIUS_M,
+                       spacing=0.01)  # fmt: skip
 
 
 def _pads_supported(
@@ -407,14 +668,20 @@ def _pads_supported(
     f1: np.ndarray,
     f23: np.ndarray,
     yaw: np.ndarray,
+    hand: np.ndarray | None = None,
 ) -> np.ndarray:
     """(K,) both contacts carry a pad: the contact, the pad's sides across the closing axis
-    and the same three points at its top edge lie on the surface, each where the pad is or
-    shifted along the closing direction by one of :data:`PAD_DEPTHS_M` (a curved or leaning
-    face)."""
-    across = np.column_stack([np.sin(yaw), -np.cos(yaw), np.zeros(len(yaw))])  # pinch-site y
-    axis = np.column_stack([np.cos(yaw), np.sin(yaw), np.zeros(len(yaw))])  # pinch-site x
-    up = np.array([0.0, 0.0, PAD_TOP_ABOVE_CENTRE_M + PAD_TOP_MARGIN_M])
+    and the same three points at its top edge (toward the palm) lie on the surface, each
+    where the pad is or shifted along the closing direction by one of :data:`PAD_DEPTHS_M`
+    (a curved or leaning face). ``hand`` (K, 3, 3): the hand's rotations (tilted grasps);
+    None: top-down at ``yaw``."""
+    if hand is None:
+        across = np.column_stack([np.sin(yaw), -np.cos(yaw), np.zeros(len(yaw))])  # site y
+        axis = np.column_stack([np.cos(yaw), np.sin(yaw), np.zeros(len(yaw))])  # site x
+        up: np.ndarray = np.array([0.0, 0.0, PAD_TOP_ABOVE_CENTRE_M + PAD_TOP_MARGIN_M])
+    else:
+        axis, across = hand[:, :, 0], hand[:, :, 1]
+        up = -(PAD_TOP_ABOVE_CENTRE_M + PAD_TOP_MARGIN_M) * hand[:, :, 2]  # toward the palm
     side = PAD_HALF_WIDTH_M * across  # (K, 3)
     # The pad's six points, the most discriminating first (its top edge); each is tested
     # only for the candidates that passed the ones before.
