@@ -35,3 +35,36 @@ def test_a_three_part_bin_is_cleared():
     assert rec["picked"] == 3 and rec["cleared_fraction"] == 1.0, rec
     assert rec["stopped"] == "nothing found"  # the robot saw the bin empty
     assert all(p["views"] >= 1 and p["time_s"] >= p["perception_s"] for p in rec["picks"])
+
+
+def test_an_instance_with_another_resting_on_it_is_covered():
+    """Two boxes side by side and a third lying across the first: only the first has
+    another instance's sensed points on it (brute force layout; no simulator)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from mks_sim.geometry.meshes import box_mesh, sample_surface
+    from mks_sim.models.objects import ObjectModel
+    from mks_sim.tasks.bin import COVERED_POINTS, covered_points
+
+    mesh = box_mesh((0.06, 0.04, 0.02))
+    obj = ObjectModel(name="b", mesh=mesh, symmetries=np.eye(4)[None], friction=(1.0, 0.01, 0.0))
+
+    def pose(x, y, z):
+        T = np.eye(4)
+        T[:3, 3] = (x, y, z)
+        return T
+
+    poses = [pose(0.0, 0.0, 0.01), pose(0.1, 0.0, 0.01), pose(0.0, 0.0, 0.03)]
+    pts, idx = [], []
+    top, _ = sample_surface(mesh, 2000, rng=np.random.default_rng(1))
+    top = top[top[:, 2] > 0.0099]  # what a camera above sees: the top faces
+    for T in poses:
+        idx.append(np.arange(len(top)) + sum(len(p) for p in pts))
+        pts.append(top + T[:3, 3])
+    insts = [SimpleNamespace(matrix=T, points=k) for T, k in zip(poses, idx, strict=True)]
+    sensed = SimpleNamespace(points=np.concatenate(pts), instances=SimpleNamespace(instances=insts))
+    assert covered_points(sensed, 0, obj) > COVERED_POINTS  # the third lies on it
+    assert covered_points(sensed, 1, obj) == 0  # beside, level with it
+    assert covered_points(sensed, 2, obj) == 0  # on top

@@ -743,11 +743,15 @@ def clear_bin(
         if not found:
             stopped = "nothing found"
             break
-        # instances a pick failed on go last (the failure may repeat)
+        # instances a pick failed on go last (the failure may repeat); before them, those
+        # with another instance resting on them (it would be carried along and dropped)
+        covered = [covered_points(robot.sensed, i, robot.obj) > COVERED_POINTS for i in
+                   range(len(found))]  # fmt: skip
         order = sorted(
             range(len(found)),
-            key=lambda i: any(
-                np.linalg.norm(found[i].matrix[:3, 3] - f) < FAILED_NEAR_M for f in failed_at
+            key=lambda i: (
+                any(np.linalg.norm(found[i].matrix[:3, 3] - f) < FAILED_NEAR_M for f in failed_at),
+                covered[i],
             ),
         )
         chosen: tuple[int, Any] | None = None
@@ -810,6 +814,39 @@ def clear_bin(
         "stopped": stopped,
         "faults": robot.faults_seen,
     }
+
+
+#: An instance with more than this many of other instances' sensed points resting on it is
+#: picked after the free ones.
+COVERED_POINTS = 15
+#: A point lies on an instance when it is within this distance across (xy) of the instance's
+#: posed surface and higher than it by at least ``COVER_ABOVE_M``.
+COVER_XY_M = 0.006
+COVER_ABOVE_M = 0.004
+
+
+def covered_points(sensed: Any, i: int, obj: Any) -> int:
+    """Sensed points claimed by other instances that rest on instance ``i``: within
+    :data:`COVER_XY_M` across of its estimated surface (the model posed at the estimate) and
+    at least :data:`COVER_ABOVE_M` above the surface's highest point there. Nothing but the
+    sensing and the estimates is used."""
+    from scipy.spatial import cKDTree
+
+    from mks_sim.geometry.meshes import sample_surface
+
+    insts = sensed.instances.instances
+    others = [sensed.points[inst.points] for j, inst in enumerate(insts) if j != i]
+    if not others:
+        return 0
+    P = np.concatenate(others)
+    key = "bin_cover_samples"
+    if key not in obj.mesh._cache:
+        obj.mesh._cache[key] = sample_surface(obj.mesh, 3000, rng=np.random.default_rng(0))[0]
+    T = insts[i].matrix
+    S = obj.mesh._cache[key] @ T[:3, :3].T + T[:3, 3]
+    near = cKDTree(S[:, :2]).query_ball_point(P[:, :2], COVER_XY_M)
+    top = np.array([S[n, 2].max() if n else np.inf for n in near])
+    return int(np.sum(P[:, 2] > top + COVER_ABOVE_M))
 
 
 def _claimed_mask(sensed: Any, i: int) -> np.ndarray:
