@@ -40,7 +40,6 @@ logger = logging.getLogger(__name__)
 LocalizeFn = Callable[[Any, str], "np.ndarray | None"]
 FrameSink = Callable[[np.ndarray], None]
 
-OBJECTS = ("cube", "sphere", "part")
 TOUCH_DEVICES = ("touch_finger_1", "touch_finger_2", "touch_finger_3")
 # Each finger's joint-torque device stands in for its pad when the pad fails (the same
 # substitution as the Touch_Contacts alternates Torque_For_Pad_<i>, sensors/touch.toml).
