@@ -2,7 +2,8 @@
 
 Sense (camera views, stereo pair, range finder), the SPG, curvature separation, vertexes and
 control points, Hough localization and refinement, then grasp the sphere, the cube and the
-part in turn. Prints a summary table (estimate vs truth, errors, grasp result per object)
+part in turn; last a bin of 3 parts: every instance localized, one picked into the output
+box (``mks_sim.cli._bin.demo_bin``). Prints a summary table (estimate vs truth, errors, grasp result per object)
 and writes a report folder: one image per stage, a video of the grasps and, when the ``viz``
 extra is installed, ``demo.rrd``: a Rerun recording of every stage (``--rerun SPEC`` sends it
 elsewhere, ``--no-rerun`` skips it; ``docs/visualization.md``). On its ``episode`` timeline
@@ -76,7 +77,7 @@ class Demo:
         self.images: list[str] = []
         self.notes: list[str] = []
         self.recorder: Recorder = NullRecorder()
-        self.bar = tqdm(total=14, desc="demo", unit="stage", file=sys.stderr)
+        self.bar = tqdm(total=15, desc="demo", unit="stage", file=sys.stderr)
 
     def stage(self, name: str, fn: Callable[[], Any]) -> Any:
         """Run one stage; a failing stage is reported and the demo goes on."""
@@ -319,6 +320,10 @@ def run_demo(
             finally:
                 if renderer is not None:
                     renderer.close()
+        # --- bin picking (issue 13; cli/_bin.py): 3 parts localized, one pick ---------------
+        from mks_sim.cli._bin import demo_bin
+
+        demo.stage("bin: localize all, pick one", lambda: demo_bin(demo, seed, grasp, _frame_hook))
         video_path = None
         if video and demo.frames:
             from mks_sim.report import write_video
