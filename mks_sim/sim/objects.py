@@ -1,5 +1,6 @@
-"""Objects of the workstation: database objects (cube, sphere, part, any added mesh), clutter
-and scene-1 flat parts.
+"""Objects of the workstation: database objects (cube, sphere, part, any added mesh) and the
+random-dot materials (clutter and flat parts come from scene files: ``sim.scenes``,
+``sim.flatparts``).
 
 Every object is a body with a free joint (``names.free_joint(body)``). The BODY frame is the
 object frame (ground truth, ``mks_sim.sim.truth``): MuJoCo moves a mesh into its
@@ -115,30 +116,6 @@ def _object_body(
     body = root.worldbody.add("body", name=name, pos=pos)
     body.add("freejoint", name=names.free_joint(name))
     return body
-
-
-def add_clutter(root: mjcf.RootElement, index: int, pos: tuple[float, float, float]) -> ObjectSpec:
-    """Simple 3-D clutter of scene 2: 0 = cylinder, 1 = flat block, 2 = tall block."""
-    name = names.CLUTTER[index]
-    colours = [
-        ((0.2, 0.6, 0.25), (0.9, 1.0, 0.8)),
-        ((0.8, 0.7, 0.2), (0.3, 0.2, 0.1)),
-        ((0.5, 0.3, 0.6), (1.0, 0.9, 1.0)),
-    ]
-    rgb, dots = colours[index]
-    mat = random_dot_material(root, f"{name}_mat", rgb, dots, size=64)
-    body = _object_body(root, name, pos)
-    common = dict(material=mat, density=DENSITY_WOOD, friction=OBJECT_FRICTION, condim=4)
-    if index == 0:
-        r, h = 0.022, 0.035
-        body.add("geom", name=f"{name}_geom", type="cylinder", size=[r, h], **common)
-        return ObjectSpec(name, "cylinder", h, r)
-    if index == 1:
-        half = (0.04, 0.025, 0.015)
-    else:
-        half = (0.02, 0.02, 0.04)
-    body.add("geom", name=f"{name}_geom", type="box", size=list(half), **common)
-    return ObjectSpec(name, "block", half[2], float(np.hypot(half[0], half[1])))
 
 
 def _triplanar_texcoords(vertices: np.ndarray, scale_m: float = 0.05) -> np.ndarray:
