@@ -302,3 +302,26 @@ def test_tilted_fingers_and_palm_keep_clear_of_sensed_points() -> None:
               if c.rotation_world]  # fmt: skip
     assert walled
     assert all(sweep_distance(c) >= grasp.FINGER_CLEARANCE_M - 1e-3 for c in walled)
+
+
+def test_the_l_bracket_standing_on_its_short_leg_gets_tilted_grasps_too() -> None:
+    """Issue 10's thin shape (tests/_gen_meshes.py): standing on its 40 mm leg's end, the
+    bracket gets tilted candidates besides the top-down ones (antipodal by brute force).
+    Lying flat or on its long leg its faces are 10 mm across, narrower than the 13 mm pad,
+    and neither path finds a pair (docs/grasp.md, Limits)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    import _gen_meshes as gen
+
+    tm = gen.l_bracket()
+    obj = _object(Mesh(np.asarray(tm.vertices), np.asarray(tm.faces)))
+    R = Rotation.from_euler("y", 90, degrees=True).as_matrix()  # the 40 mm leg down
+    T = _resting(obj.mesh, R, (0.0, 0.1))
+    cands = synthesize_grasps(obj, T, table_z=TABLE_Z)
+    top = synthesize_grasps(obj, T, table_z=TABLE_Z, max_tilt_deg=0)
+    assert top and len(cands) > len(top)
+    _check(obj, T, cands)
+    flat = _resting(obj.mesh, np.eye(3), (0.0, 0.1))  # lying flat, 25 mm tall
+    assert synthesize_grasps(obj, flat, table_z=TABLE_Z) == []
