@@ -30,6 +30,7 @@ def test_bin_pick_env_passes_check_env_and_picks():
     obs, info = env.reset(seed=3)
     assert obs["valid"].dtype == np.int8 and obs["valid"].sum() >= 1
     assert info["present"] == 2 and info["picked"] == 0
+    assert info["views"] >= 1 and info["faults"] == {}
     # valid rows come first, invalid rows are zeros
     k = int(obs["valid"].sum())
     assert np.all(obs["valid"][:k] == 1) and not np.any(obs["poses"][k:])

@@ -12,7 +12,8 @@ what the sensors say, padded to ``count`` rows with a validity mask:
 
 Action: ``Discrete(count)``: the row to pick (an invalid row wastes the step). Reward and
 ``info`` are evaluation (ground truth): reward 1.0 when the picked part ended in the output
-box, else 0; ``info``: ``picked``, ``present``, ``failure``, ``provenance``, ``picks``
+box, else 0; ``info``: ``picked``, ``present``, ``failure``, ``provenance``, ``picks``,
+``views`` (of the last sensing: 2 when the wrist camera took a second look), ``faults``
 (wall-clock seconds of the last reset / step: ``env.unwrapped.last_time_s``). The
 episode terminates when sensing finds nothing; gymnasium's ``max_episode_steps`` (2 x 12 + 2)
 truncates it.
@@ -165,4 +166,6 @@ class BinPickEnv(gym.Env[dict[str, np.ndarray], np.int64]):
             "failure": failure,
             "provenance": {} if sensed is None else dict(sensed.provenance),
             "picks": self._picks,
+            "views": self._robot.views,
+            "faults": dict(self._robot.faults),
         }
