@@ -265,3 +265,43 @@ def test_ball_statistics_and_signed_normals_match_brute_force() -> None:
         want = np.linalg.eigh(cov)[1][:, 0]
         want *= 1.0 if want @ cloud_n[nb].sum(axis=0) >= 0 else -1.0
         np.testing.assert_allclose(normals[q], want, atol=1e-8)
+
+
+def test_verification_stops_early_only_on_a_clear_winner() -> None:
+    # A view of the part that the first pass's best few starts explain almost entirely (score
+    # >= accept_score) with a clear margin: localize runs one detection pass and the pose is
+    # the truth. Never accepting early (accept_score above any score) runs the full search
+    # (the widened pass too) and finds the same pose, each placement once.
+    from dataclasses import replace
+
+    model = _model("part")
+    pts, nrm, T = _scene(industrial_part_mesh(), 8, occlude=False)
+    calls: list[int | None] = []
+    real = model.detect
+
+    def spy(*args, **kw):
+        calls.append(kw.get("matches"))
+        return real(*args, **kw)
+
+    cfg = model.config
+    try:
+        model.detect = spy  # type: ignore[method-assign]
+        early = model.localize(pts, nrm)
+        n_early = len(calls)
+        model.config = replace(cfg, accept_score=1.01, retry_votes=10**6)
+        full = model.localize(pts, nrm)
+    finally:
+        model.config = cfg
+        del model.detect
+    assert n_early == 1 and calls[1:] == [None, 24]  # the widened pass only without early stop
+    best = early[0].hypothesis
+    assert best.score >= cfg.accept_score
+    pos, rot = pose_error(best.matrix, T)
+    assert pos < 0.002 and rot < 2.0
+    pos, rot = pose_error(full[0].hypothesis.matrix, best.matrix)
+    assert pos < 0.001 and rot < 1.0
+    assert len(full) > len(early)
+    for a in range(len(full)):
+        for b in range(a + 1, len(full)):
+            pa, ra = pose_error(full[a].hypothesis.matrix, full[b].hypothesis.matrix)
+            assert pa > 0.001 or ra > 3.0

@@ -62,7 +62,12 @@ from mks_sim.geometry.meshes import Mesh, sample_surface
 from mks_sim.geometry.points import fibonacci_sphere
 from mks_sim.geometry.scan import scan_scene
 from mks_sim.models.pose import PoseHypothesis
-from mks_sim.models.refine import ModelSurface, VerifiedHypothesis, verify_hypotheses
+from mks_sim.models.refine import (
+    ModelSurface,
+    VerifiedHypothesis,
+    group_equivalent,
+    verify_hypotheses,
+)
 
 __all__ = ["FreeformConfig", "FreeformModel", "FreeformResult"]
 
@@ -98,6 +103,12 @@ class FreeformConfig:
             within this angle of the scene normals (a check of the transform, not a feature).
         retry_votes: below this many votes at the best maximum, pairing is widened (see
             :meth:`FreeformModel.hypotheses`).
+        first_starts: :meth:`FreeformModel.localize` first verifies only this many of the
+            first pass's most voted hypotheses...
+        accept_score: ...and stops there when the best verified score reaches this and no
+            other distinct placement comes within ``accept_margin`` of it (None: always run
+            the full verification).
+        accept_margin: see ``accept_score``.
         seed: seed of every random choice.
     """
 
@@ -117,6 +128,11 @@ class FreeformConfig:
     mode_angle_deg: float = 12.0
     normal_tolerance_deg: float = 40.0
     retry_votes: int = 150
+    first_starts: int = 4
+    accept_score: float | None = 0.95
+    accept_margin: float = 0.05
+    accept_gap: float | None = None
+    accept_gap_floor: float = 0.6
     seed: int = 0
 
     def resolved(self, size: float) -> FreeformConfig:
@@ -446,6 +462,7 @@ class FreeformModel:
         inlier_distance: float | None = None,
         max_icp: int = 20,
         prescreen: int | None = None,
+        full_refine: int = 3,
     ) -> list[VerifiedHypothesis]:
         """Hypotheses refined by ICP and scored (``mks_sim.models.refine``), best first.
 
@@ -454,19 +471,78 @@ class FreeformModel:
         when set, all distinct hypotheses are first scored together in one batch and only this
         many of the best are refined by ICP (faster; on the benchmark's scenes 8 lost one
         success in 21, so the default keeps ICP on up to ``max_icp`` of them).
+
+        Verification stops early when it can: the ``first_starts`` most voted hypotheses of the
+        first pass are verified first, and if the best scores at least ``accept_score`` with
+        no other distinct placement within ``accept_margin`` of it, that is the answer (the
+        widened pass and the other starts are skipped). Otherwise the remaining hypotheses
+        (and the widened pass's, as in :meth:`hypotheses`) are verified too, up to
+        ``max_icp`` starts in all, and both rankings are merged.
         """
+        cfg = self.config
         scene = np.asarray(scene_points, dtype=np.float64)
-        hyps = self.hypotheses(scene, scene_normals)
         surface = ModelSurface.from_arrays(self._surface_points, self._surface_normals)
-        return verify_hypotheses(
-            hyps,
-            surface,
-            scene,
-            inlier_distance=inlier_distance or float(self.config.spacing or 0.0),
-            symmetries=self._symmetries,
-            max_icp=max_icp,
-            prescreen=prescreen,
+        d_in = inlier_distance or float(cfg.spacing or 0.0)
+
+        def verify(hyps: list[PoseHypothesis], n_icp: int) -> list[VerifiedHypothesis]:
+            return verify_hypotheses(
+                hyps,
+                surface,
+                scene,
+                inlier_distance=d_in,
+                symmetries=self._symmetries,
+                max_icp=n_icp,
+                prescreen=prescreen,
+                full_refine=full_refine,
+            )
+
+        if cfg.accept_score is None or cfg.first_starts <= 0:
+            return verify(self.hypotheses(scene, scene_normals), max_icp)
+        res = self.detect(scene, scene_normals)
+        hyps = res.hypotheses
+        n1 = min(cfg.first_starts, max_icp)
+        first = verify(hyps[:n1], n1)
+        if first:
+            best = first[0].hypothesis.score
+            second = first[1].hypothesis.score if len(first) > 1 else None
+            gap = best - (0.0 if second is None else second)
+            if best >= cfg.accept_score and gap >= cfg.accept_margin:
+                return first
+            if cfg.accept_gap is not None and second is not None:
+                if best >= cfg.accept_gap_floor and gap >= cfg.accept_gap:
+                    return first
+        rest = hyps[n1:]
+        if (hyps[0].votes if hyps else 0) < cfg.retry_votes:
+            wide = self.detect(
+                scene,
+                scene_normals,
+                matches=3 * cfg.matches_per_keypoint,
+                keypoints=res.keypoints,
+            )
+            rest = sorted(rest + wide.hypotheses, key=lambda h: -h.votes)
+        if not rest or max_icp <= n1:
+            return first
+        # Starts already verified (up to a symmetry) are not refined again.
+        size = surface.size
+        labels = group_equivalent(
+            [h.matrix for h in hyps[:n1] + rest],
+            self._symmetries,
+            rotation_tol_deg=8.0,
+            translation_tol=0.05 * size,
         )
+        k1 = len(hyps[:n1])
+        rest = [h for i, h in enumerate(rest) if labels[k1 + i] >= k1]
+        merged = sorted(
+            first + verify(rest, max_icp - n1),
+            key=lambda v: (-v.hypothesis.score, v.hypothesis.rmse),
+        )
+        keep = group_equivalent(
+            [v.hypothesis.matrix for v in merged],
+            self._symmetries,
+            rotation_tol_deg=3.0,
+            translation_tol=max(d_in, 0.01 * size),
+        )
+        return [v for i, v in enumerate(merged) if keep[i] == i]
 
     def scaled(self, factor: float) -> FreeformModel:
         """The same model with every length multiplied by ``factor`` (e.g. 0.001: mm -> m).
@@ -617,16 +693,20 @@ class FreeformModel:
         assert cfg.bin_size is not None
         b = cfg.bin_size
         cell = np.floor(ref / b).astype(np.int64)
-        uniq, inv, counts = np.unique(cell, axis=0, return_inverse=True, return_counts=True)
+        # Cells as one integer key each (mixed radix: sorted keys = lexicographic cells, the
+        # order of np.unique(axis=0), without its slow row sort).
+        lo = cell.min(axis=0) - 1
+        span = cell.max(axis=0) - lo + 2
+        stride = np.array([span[1] * span[2], span[2], 1], dtype=np.int64)
+        keys, first, inv, counts = np.unique(
+            (cell - lo) @ stride, return_index=True, return_inverse=True, return_counts=True
+        )
         inv = inv.reshape(-1)
-        # Sum each cell's votes with its 26 neighbours (a bin edge must not split a peak):
-        # cells as one integer key each (sorted, as np.unique returns them), neighbours found
-        # by binary search.
+        uniq = cell[first]
+        # Sum each cell's votes with its 26 neighbours (a bin edge must not split a peak),
+        # neighbours found by binary search.
         offs = np.array([[a, b_, c] for a in (-1, 0, 1) for b_ in (-1, 0, 1) for c in (-1, 0, 1)])
-        lo = uniq.min(axis=0) - 1
-        span = uniq.max(axis=0) - lo + 2
-        keys = ((uniq - lo) @ np.array([span[1] * span[2], span[2], 1])).astype(np.int64)
-        nb_keys = ((uniq[:, None, :] + offs[None] - lo) @ np.array([span[1] * span[2], span[2], 1]))
+        nb_keys = (uniq[:, None, :] + offs[None] - lo) @ stride
         pos = np.minimum(np.searchsorted(keys, nb_keys), len(keys) - 1)
         hit = keys[pos] == nb_keys  # (U, 27)
         smooth = np.where(hit, counts[pos], 0).sum(axis=1)
@@ -634,6 +714,7 @@ class FreeformModel:
         out: list[PoseHypothesis] = []
         used: list[FloatArray] = []
         tree = cKDTree(ref)
+        n_model = np.int64(len(self.model_points))
         cos_thr = np.cos(np.radians(cfg.mode_angle_deg))
         for u in order:
             if len(used) >= cfg.max_peaks:
@@ -666,10 +747,9 @@ class FreeformModel:
                 matrix = np.eye(4)
                 matrix[:3, :3] = rm
                 matrix[:3, 3] = p0 - rm @ self.reference_point
-                pairs = np.unique(
-                    np.stack([scene_index[tri[mm]].ravel(), model_index[tri[mm]].ravel()], 1),
-                    axis=0,
-                )
+                # distinct (scene, model) pairs, sorted, through one integer key each
+                pk = np.unique(scene_index[tri[mm]].ravel() * n_model + model_index[tri[mm]].ravel())
+                pairs = np.stack([pk // n_model, pk % n_model], 1)
                 out.append(
                     PoseHypothesis(
                         matrix=matrix,
