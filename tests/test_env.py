@@ -63,8 +63,9 @@ def test_check_env_passes() -> None:
 
 
 @pytest.mark.slow
-def test_same_seed_same_rollout_and_reset_restores_state() -> None:
-    env = _make(object="cube")
+@pytest.mark.parametrize("sleep", [False, True])
+def test_same_seed_same_rollout_and_reset_restores_state(sleep: bool) -> None:
+    env = _make(object="cube", sleep=sleep)  # sleeping: the reset must wake everything
     try:
         actions = np.random.default_rng(0).uniform(-1, 1, (6, 5)).astype(np.float32)
 

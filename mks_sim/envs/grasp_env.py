@@ -121,6 +121,11 @@ class GraspEnv(gym.Env):
             ``mks-sim grasp --models`` they are put into ``MKS_SIM_MODELS`` (with the folders
             already there), which the task, scene and localization read -- so vector-env
             subprocesses see them too.
+        sleep: let resting bodies sleep (MuJoCo's ``mjENBL_SLEEP``, :class:`World`): resting
+            clutter and a resting object cost nothing per step until something touches them
+            (about twice the simulated seconds per wall second with random actions). Off by
+            default: it changes the contact solution, and the scripted grasps' success was
+            measured without it (docs/env.md "Speed" has the numbers with it).
 
     Raises:
         NotFound: ``object`` is not in the model database (the message lists the known
@@ -145,6 +150,7 @@ class GraspEnv(gym.Env):
         localize_fn: LocalizeFn | None = None,
         render_size: tuple[int, int] = (160, 120),
         models: Iterable[str | os.PathLike[str]] = (),
+        sleep: bool = False,
     ) -> None:
         model_dirs = tuple(str(p) for p in models)
         _use_models(model_dirs)
@@ -168,6 +174,7 @@ class GraspEnv(gym.Env):
             observe_points=observe_points, image_size=tuple(image_size), n_points=n_points,
             max_episode_steps=max_episode_steps, resense_every=resense_every,
             localize_fn=localize_fn, render_size=tuple(render_size), models=model_dirs,
+            sleep=bool(sleep),
         )  # fmt: skip
         from mks_sim.sim.world import build_world
 
@@ -181,7 +188,7 @@ class GraspEnv(gym.Env):
         self.image_size = (int(image_size[0]), int(image_size[1]))
         self.n_points = int(n_points)
         self.render_size = (int(render_size[0]), int(render_size[1]))
-        self.world = build_world(self.task.scene)
+        self.world = build_world(self.task.scene, sleep=bool(sleep))
         self._names = RobotNames.from_model(self.world.model)
         # ArmHandController's default 20 ms control period in model timesteps.
         self._ctl_substeps = max(1, round(0.02 / self.world.model.opt.timestep))

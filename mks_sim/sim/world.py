@@ -38,6 +38,11 @@ DROP_DAMPING_TAU_S = 0.05  # rotational damping time constant while a dropped ob
 _MIN_GAP_M = 0.012  # clearance between footprints of randomly placed objects
 _MAX_TRIES = 100  # per object, before the whole layout restarts
 _MAX_LAYOUTS = 200
+# Sleeping (MuJoCo's mjENBL_SLEEP; opt-in, ``sleep=True``; docs/env.md "Speed"): a body tree
+# whose velocities stay below SLEEP_TOLERANCE (m/s, rad/s) for 10 steps is no longer simulated
+# nor collided until an awake body touches it or its pose is set; the actuated robot never
+# sleeps. Sleeping bodies keep their poses: cameras and the range finder still see them.
+SLEEP_TOLERANCE = 1e-3
 
 
 class World:
@@ -49,10 +54,23 @@ class World:
         model: the raw ``mujoco.MjModel`` (``physics.model.ptr``).
         data: the raw ``mujoco.MjData`` (``physics.data.ptr``).
         robot: the Jaco arm and hand entities.
+        sleep: whether resting bodies may sleep (``SLEEP_TOLERANCE``).
+
+    Args:
+        scene: the scene to compile.
+        sleep: let resting bodies sleep (MuJoCo's ``mjENBL_SLEEP``): resting clutter then
+            costs nothing per step. Off by default: it changes the contact solution (the
+            grasp success rates were measured without it; docs/env.md "Speed").
     """
 
-    def __init__(self, scene: SceneSpec) -> None:
+    def __init__(self, scene: SceneSpec, *, sleep: bool = False) -> None:
         self.scene = scene
+        self.sleep = bool(sleep)
+        if self.sleep:
+            # In the MJCF, before compiling: the flag set on the compiled model instead broke
+            # the IK's scratch MjData (measured).
+            scene.root.option.flag.sleep = "enable"
+            scene.root.option.sleep_tolerance = SLEEP_TOLERANCE
         self.physics = mjcf.Physics.from_mjcf_model(scene.root)
         self.model: mujoco.MjModel = self.physics.model.ptr
         self.data: mujoco.MjData = self.physics.data.ptr
@@ -312,6 +330,7 @@ def build_world(
     *,
     objects: Sequence[str] = (),
     models: Sequence[str | Path] = (),
+    sleep: bool = False,
 ) -> World:
     """Compile a scene; with a ``seed``, randomise the object poses from it.
 
@@ -323,6 +342,7 @@ def build_world(
             scene's default layout (settled).
         objects: database object names for the default scene.
         models: extra model folders (``--models DIR``).
+        sleep: let resting bodies sleep (:class:`World`).
 
     Raises:
         NotFound: unknown scene or object name.
@@ -334,7 +354,7 @@ def build_world(
         spec = default_scene(list(objects), models=models)
     else:
         spec = build_scene(scene, models=models)
-    world = World(spec)
+    world = World(spec, sleep=sleep)
     if seed is not None:
         world.randomize(np.random.default_rng(seed))
     else:
