@@ -325,3 +325,19 @@ def test_the_l_bracket_standing_on_its_short_leg_gets_tilted_grasps_too() -> Non
     _check(obj, T, cands)
     flat = _resting(obj.mesh, np.eye(3), (0.0, 0.1))  # lying flat, 25 mm tall
     assert synthesize_grasps(obj, flat, table_z=TABLE_Z) == []
+
+
+def test_a_tighter_finger_clearance_admits_grasps_beside_a_wall() -> None:
+    """A box 17 mm (fingertip to wall, brute force) from a wall of sensed points: blocked at
+    the default clearance (22 mm), admitted at 12 mm (clear_bin's last round, for walls)."""
+    obj = _object(box_mesh((0.05, 0.05, 0.05)))
+    T = _resting(obj.mesh, np.eye(3), (0.0, 0.0))
+    gy, gz = np.meshgrid(np.linspace(-0.1, 0.1, 41), np.linspace(TABLE_Z, TABLE_Z + 0.1, 21))
+    wall = np.column_stack([np.full(gy.size, 0.06), gy.ravel(), gz.ravel()])
+    default = synthesize_grasps(obj, T, table_z=TABLE_Z, obstacles=wall, max_tilt_deg=0)
+    tight = synthesize_grasps(obj, T, table_z=TABLE_Z, obstacles=wall, max_tilt_deg=0,
+                              finger_clearance_m=0.012)  # fmt: skip
+    along_x = [c for c in tight if abs(c.axis_world[0]) > 0.99]
+    assert not any(abs(c.axis_world[0]) > 0.99 for c in default)
+    assert along_x
+    assert all(0.012 <= _tip_distance_to(c, wall) < grasp.FINGER_CLEARANCE_M for c in along_x)

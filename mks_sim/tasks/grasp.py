@@ -366,6 +366,7 @@ def synthesize_grasps(
     max_candidates: int = 24,
     max_tilt_deg: float = MAX_TILT_DEG,
     max_tilted: int = MAX_TILTED,
+    finger_clearance_m: float = FINGER_CLEARANCE_M,
 ) -> list[GraspCandidate]:
     """Antipodal grasps of ``obj`` at ``object_to_world``: top-down first, then tilted.
 
@@ -386,6 +387,9 @@ def synthesize_grasps(
         max_tilt_deg: tilted grasps approach at most this far from straight down (0: top-down
             only); their closing axis may leave the horizontal (:func:`_tilted_grasps`).
         max_tilted: at most this many tilted candidates.
+        finger_clearance_m: obstacle points closer than this to an open fingertip's descent
+            block it (default :data:`FINGER_CLEARANCE_M`; a rigid fixture such as a bin wall
+            may be passed closer).
 
     Returns:
         Candidates: the top-down ones best first, then the tilted ones best first (a
@@ -440,7 +444,7 @@ def synthesize_grasps(
         tilted = _tilted_grasps(
             obj, R, t, table_z=table_z, own=own, obs=obs, cos_cone=cos_cone,
             max_tilt=math.radians(max_tilt_deg), n_samples=n_samples,
-            preferred_yaw=preferred_yaw, limit=max_tilted,
+            preferred_yaw=preferred_yaw, limit=max_tilted, finger_clearance=finger_clearance_m,
         )  # fmt: skip
     if len(ii) == 0:
         return tilted
@@ -469,7 +473,7 @@ def synthesize_grasps(
         start, batch = start + batch, 2 * batch  # few batches when most candidates fail
         tips = _tips_world(pinch[b], yaw[b], aperture[b])
         ok = _tip_hits(tips, pinch[b, 2], own, SELF_CLEARANCE_M) == 0
-        ok &= _tip_hits(tips, pinch[b, 2], obs, FINGER_CLEARANCE_M) == 0
+        ok &= _tip_hits(tips, pinch[b, 2], obs, finger_clearance_m) == 0
         b = b[ok]
         ok = _pads_supported(mesh, R, t, p_world, n_world, f1[b], f23[b], yaw[b])
         kept.extend(int(k) for k in b[ok])
@@ -503,6 +507,7 @@ def _tilted_grasps(
     n_samples: int,
     preferred_yaw: float,
     limit: int,
+    finger_clearance: float = FINGER_CLEARANCE_M,
 ) -> list[GraspCandidate]:
     """Grasps whose approach leaves the vertical (at most ``max_tilt`` rad), best first.
 
@@ -596,7 +601,7 @@ def _tilted_grasps(
         b = b[_pads_supported(mesh, R, t, p_w, n_w, f1[b], f23[b], yaw[b], hand[b])]
         tips = _tips_hand(aperture[b])  # (k, 3, 3) hand frame
         ok = ~_sweep_hits(hand[b], pinch[b], tips, own_tree, SELF_CLEARANCE_M)
-        ok &= ~_sweep_hits(hand[b], pinch[b], tips, obs_tree, FINGER_CLEARANCE_M)
+        ok &= ~_sweep_hits(hand[b], pinch[b], tips, obs_tree, finger_clearance)
         ok &= ~_palm_hits(hand[b], pinch[b], obs_tree)
         kept.extend(int(k) for k in b[ok])
     return [
