@@ -1,15 +1,19 @@
 """Benchmark: bin picking (issue 13).
 
-Over ``--n`` seeds (reporting seeds from 4000: nothing was tuned on them) of the ``bin``
-scene (``--count`` parts, default 6, dropped into a walled tray and settled):
+Over ``--n`` seeds (default the reporting seeds from 3000; the bin room tuned on 0-19 and
+4000-4010, the others on 0-19 and 1000-1099) of the ``bin`` scene (``--count`` parts, default
+6, dropped into a walled tray and settled):
 
 - localization: ``mks-sim localize --scene bin --all`` (``run_localize_all``): instances found
   within 5 mm / 5 degrees of the ground truth, by visible fraction of the true instance
   (surface samples within 2 mm of a sensed point above the table), false positives; range
-  finder healthy and failed;
+  finder healthy, healthy with one view only (``--one-view``: no second look with the wrist
+  camera, to see what active sensing adds), and range finder failed (the wrist camera's views
+  alone); views per localization;
 - clearing: ``mks-sim grasp --task clear_bin`` (``run_clear_bin``): parts picked into the
   output box over parts present, failures by reason, time per pick (sense + localize + plan +
-  motion) and of its perception part; range finder healthy and failed.
+  motion) and of its perception part, views per pick (2+ = the wrist camera took another
+  look); range finder healthy and failed.
 
 Goals (issue 13): >= 95 % of instances with >= 30 % visible surface found, <= 2 % false
 positives; >= 95 % of parts picked (20 bins of 6, range finder healthy); time per pick
@@ -19,8 +23,8 @@ A trial that raises is recorded with its error, never a crash of the sweep.
 
 Run (the lead, on an idle machine)::
 
-    .venv/bin/python benchmarks/bin.py --n 20 --workers 2 --out benchmarks/results/bin.md
-    .venv/bin/python benchmarks/bin.py --quick      # 2 seeds of 3 parts, healthy only, stdout
+    .venv/bin/python benchmarks/bin.py --n 20 --workers 2   # writes benchmarks/results/bin.md
+    .venv/bin/python benchmarks/bin.py --quick --seed0 10   # 2 tuning bins of 3, healthy, stdout
 """
 
 from __future__ import annotations
@@ -38,17 +42,26 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _provenance import header_lines  # noqa: E402
 
-SEED0 = 4000
-MODES: dict[str, tuple[str, ...]] = {"healthy": (), "range finder failed": ("range_finder",)}
+SEED0 = 3000
+#: mode -> (failed devices, active sensing, also clear the bins)
+MODES: dict[str, tuple[tuple[str, ...], bool, bool]] = {
+    "healthy": ((), True, True),
+    "healthy, one view (no wrist look)": ((), False, False),
+    "range finder failed": (("range_finder",), True, True),
+}
+DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "bin.md"
 VISIBLE_BINS = ((0.0, 0.1), (0.1, 0.2), (0.2, 0.3), (0.3, 0.5), (0.5, 1.01))
 
 
-def _localize(job: tuple[int, int, tuple[str, ...]]) -> dict[str, Any]:
+Job = tuple[int, int, tuple[str, ...], bool]
+
+
+def _localize(job: Job) -> dict[str, Any]:
     from mks_sim.tasks.bin import run_localize_all
 
-    seed, count, fail = job
+    seed, count, fail, active = job
     try:
-        return run_localize_all(seed, count=count, fail=fail)
+        return run_localize_all(seed, count=count, fail=fail, active=active)
     except Exception as exc:  # noqa: BLE001 - recorded, the sweep goes on
         return {
             "seed": seed,
@@ -57,12 +70,12 @@ def _localize(job: tuple[int, int, tuple[str, ...]]) -> dict[str, Any]:
         }
 
 
-def _clear(job: tuple[int, int, tuple[str, ...]]) -> dict[str, Any]:
+def _clear(job: Job) -> dict[str, Any]:
     from mks_sim.tasks.bin import run_clear_bin
 
-    seed, count, fail = job
+    seed, count, fail, active = job
     try:
-        return run_clear_bin(seed, count=count, fail=fail)
+        return run_clear_bin(seed, count=count, fail=fail, active=active)
     except Exception as exc:  # noqa: BLE001
         return {
             "seed": seed,
@@ -83,10 +96,12 @@ def localization_rows(recs: list[dict[str, Any]]) -> list[str]:
     per_bin = {b: [0, 0] for b in VISIBLE_BINS}
     fp = found = 0
     times = []
+    views: list[int] = []
     errors = [r for r in recs if "error" in r]
     for r in recs:
         if "error" in r:
             continue
+        views.append(int(r.get("views", 1)))
         found += r["found"]
         fp += r["false_positives"]
         times.append(r["time_s"])
@@ -114,6 +129,10 @@ def localization_rows(recs: list[dict[str, Any]]) -> list[str]:
     )
     if times:
         rows.append(f"| time per localization (median) | {np.median(times):.2f} s | |")
+    if views:
+        more = sum(v > 1 for v in views)
+        rows.append(f"| views per localization (mean) | {np.mean(views):.2f} | "
+                    f"{more} of {len(views)} took 2+ |")  # fmt: skip
     for r in errors:
         rows.append(f"| seed {r['seed']} raised | {r['error'][:80]} | |")
     return rows
@@ -124,6 +143,7 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
     picked = present = 0
     reasons: Counter[str] = Counter()
     pick_t, perc_t, stopped = [], [], Counter()
+    views: list[int] = []
     for r in recs:
         if "error" in r:
             reasons[f"raised: {r['error'][:60]}"] += 1
@@ -132,6 +152,7 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
         present += r["present"]
         stopped[r["stopped"]] += 1
         for p in r["picks"]:
+            views.append(int(p.get("views", 1)))
             if p["success"]:
                 pick_t.append(p["time_s"])
                 perc_t.append(p["perception_s"])
@@ -146,6 +167,10 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
             f"| time per successful pick (median) | {np.median(pick_t):.1f} s | perception "
             f"{np.median(perc_t):.1f} s |"
         )
+    if views:
+        more = sum(v > 1 for v in views)
+        rows.append(f"| views per pick (mean) | {np.mean(views):.2f} | "
+                    f"{more} of {len(views)} picks took 2+ |")  # fmt: skip
     for why, n in reasons.most_common():
         rows.append(f"| failed pick: {why} | {n} | |")
     for why, n in stopped.most_common():
@@ -161,20 +186,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="parallel processes")
     ap.add_argument("--quick", action="store_true", help="2 bins of 3 parts, healthy only")
     ap.add_argument("--no-clear", action="store_true", help="localization only")
-    ap.add_argument("--out", type=Path, help="write the markdown here (default stdout)")
+    ap.add_argument("--out", type=Path, default=None,
+                    help=f"write the markdown here (default {DEFAULT_OUT}; --quick: stdout)")  # fmt: skip
     args = ap.parse_args(argv)
     n, count, modes = args.n, args.count, MODES
     if args.quick:
-        n, count, modes = 2, 3, {"healthy": ()}
+        n, count, modes = 2, 3, {"healthy": MODES["healthy"]}
+    elif args.out is None:
+        args.out = DEFAULT_OUT
     seeds = range(args.seed0, args.seed0 + n)
     lines = header_lines(" ".join(["benchmarks/bin.py", *(argv or sys.argv[1:])]))
     lines += ["", f"# Bin picking: {n} bins of {count} parts (seeds {seeds[0]}..{seeds[-1]})", ""]
-    for mode, fail in modes.items():
-        jobs = [(s, count, fail) for s in seeds]
+    for mode, (fail, active, clear) in modes.items():
+        jobs = [(s, count, fail, active) for s in seeds]
         lines += [f"## Localization of every instance, {mode}", "", "| | found | rate |",
                   "|---|---|---|"]  # fmt: skip
         lines += localization_rows(_run(_localize, jobs, args.workers)) + [""]
-        if args.no_clear:
+        if args.no_clear or not clear:
             continue
         lines += [f"## clear_bin, {mode}", "", "| | | |", "|---|---|---|"]
         lines += clearing_rows(_run(_clear, jobs, args.workers)) + [""]
