@@ -716,11 +716,15 @@ class FreeformModel:
         tree = cKDTree(ref)
         n_model = np.int64(len(self.model_points))
         cos_thr = np.cos(np.radians(cfg.mode_angle_deg))
+        # each cell's votes as one slice of a stable sort (the same points, in the same order,
+        # as ref[inv == u], without a pass over all votes per cell)
+        by_cell = np.argsort(inv, kind="stable")
+        cell_start = np.concatenate([[0], np.cumsum(counts)])
         for u in order:
             if len(used) >= cfg.max_peaks:
                 break
-            centre = ref[inv == u].mean(axis=0)
-            if any(np.linalg.norm(centre - c) < 1.5 * b for c in used):
+            centre = ref[by_cell[cell_start[u] : cell_start[u + 1]]].mean(axis=0)
+            if used and np.linalg.norm(np.asarray(used) - centre, axis=1).min() < 1.5 * b:
                 continue
             used.append(centre)
             members = np.asarray(tree.query_ball_point(centre, 1.5 * b), dtype=np.int64)
@@ -729,9 +733,11 @@ class FreeformModel:
                     np.random.default_rng(cfg.seed).choice(members, 400, replace=False)
                 )
             r = rot[members]
-            # Pairwise rotation similarity: cos(angle) = (trace(Ri^T Rj) - 1) / 2. (einsum, not
-            # a BLAS matmul: multithreaded BLAS on a busy machine was 5-20x slower here)
-            cos = (np.einsum("aij,bij->ab", r, r) - 1.0) / 2.0
+            # Pairwise rotation similarity: cos(angle) = (trace(Ri^T Rj) - 1) / 2. (einsum over
+            # the flattened 3x3, not a BLAS matmul: multithreaded BLAS on a busy machine was
+            # 5-20x slower here; the flattened form is ~1.5x faster than "aij,bij->ab")
+            r9 = r.reshape(len(r), 9)
+            cos = (np.einsum("ak,bk->ab", r9, r9) - 1.0) / 2.0
             close = cos >= cos_thr
             free = np.ones(len(members), bool)
             for _ in range(cfg.modes_per_peak):
