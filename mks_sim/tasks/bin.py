@@ -463,8 +463,8 @@ class BinPicker:
     def sense(self) -> list[Any]:
         """Every instance found, best score first (``Instance``), from one view or more.
 
-        The first view is the range finder's (the wrist camera from where the arm is when the
-        range finder fails). When the best instance scores below the fused sensor's
+        The first view is the range finder's (when it fails, the wrist camera's from the first
+        reachable viewpoint; with both failed, the fixed cameras: the sensor's alternates). When the best instance scores below the fused sensor's
         ``rescan_below`` or fewer than ``min_pad_points`` sensed points lie near a pad contact
         of its best grasp, the arm takes the wrist camera to the candidate viewpoint that sees
         most of that instance's predicted surface not seen yet, and the views are fused and
@@ -510,7 +510,7 @@ class BinPicker:
                 {"reason": why, "taken": True, "viewpoint": [round(float(v), 4) for v in moved],
                  "points_before": len(before.points), "points_after": len(self.sensed.points)}
             )  # fmt: skip
-        self.views = self._held_views(held)
+        self.views = self._held_views(held) or 1  # none held: a fixed camera's one view
         self.faults_seen.update(self.faults)
         self.perception_s = time.perf_counter() - t
         return list(self.sensed.instances.instances)
@@ -539,9 +539,10 @@ class BinPicker:
     def _localize(self, held: dict[str, Any]) -> Any:
         from mks_sim.localization.instances import localize_instances
 
+        # the held views stand for their devices; the others serve the sensor's alternates
         return localize_instances(
-            held, self.name, roi=self.roi, graph=self.graph, rng=self.rng, models=self.models,
-            sensor=VIEWS_SENSOR,
+            {**self.devices, **held}, self.name, roi=self.roi, graph=self.graph, rng=self.rng,
+            models=self.models, sensor=VIEWS_SENSOR,
         )  # fmt: skip
 
     def _needs_view(self, *, scanned: bool = True) -> str:
@@ -626,9 +627,11 @@ class BinPicker:
             i: the instance (score order).
             obstacles: ``"all"``: the other instances' points and everything else sensed
                 (walls) are obstacles; ``"fixed"``: only what no instance explains (walls: the
-                fingers may push neighbouring parts aside); ``"none"``.
+                fingers may push neighbouring parts aside); ``"tight"``: the same, the
+                fingertips allowed :data:`TIGHT_CLEARANCE_M` from them (a rigid wall, not a
+                part that may move); ``"none"``.
         """
-        from mks_sim.tasks.grasp import synthesize_grasps
+        from mks_sim.tasks.grasp import FINGER_CLEARANCE_M, synthesize_grasps
 
         memo = self._grasp_memo
         if memo is not None and memo[0] is self.sensed and memo[1:3] == (i, obstacles):
@@ -641,12 +644,13 @@ class BinPicker:
             # other instance claimed
             own = np.linalg.norm(P - T[:3, 3], axis=1) < self.radius + 0.005
             own &= ~_claimed_mask(self.sensed, i)
-            if obstacles == "fixed":
+            if obstacles in ("fixed", "tight"):
                 own |= _claimed_mask(self.sensed, -1)
             obs = P[~own & (P[:, 2] > self.table_z + 0.004)]
+        clearance = TIGHT_CLEARANCE_M if obstacles == "tight" else FINGER_CLEARANCE_M
         cands = synthesize_grasps(
             self.obj, T, table_z=self.table_z, obstacles=obs, rng=self.rng,
-            preferred_yaw=self.ctl.pinch_yaw(),
+            preferred_yaw=self.ctl.pinch_yaw(), finger_clearance_m=clearance,
         )  # fmt: skip
         self._grasp_memo = (self.sensed, i, obstacles, cands)
         return cands
@@ -757,8 +761,9 @@ def clear_bin(
         chosen: tuple[int, Any] | None = None
         blocked = no_pair = 0
         # Clear of everything first; in a pile every part may have a neighbour within the
-        # fingers' clearance: then the fingers may push neighbouring parts (not the walls).
-        for obstacles in ("all", "fixed"):
+        # fingers' clearance: then the fingers may push neighbouring parts (not the walls);
+        # last, the fingertips may pass the walls closer (a part lying against a wall).
+        for obstacles in ("all", "fixed", "tight"):
             blocked = no_pair = 0
             for i in order:
                 cands = robot.grasps(i, obstacles=obstacles)
@@ -815,6 +820,10 @@ def clear_bin(
         "faults": robot.faults_seen,
     }
 
+
+#: Fingertips may pass this close to what no instance explains (the bin's walls: rigid and
+#: where they were sensed) in the last planning round; the fingertip is ~10 mm thick.
+TIGHT_CLEARANCE_M = 0.012
 
 #: An instance with more than this many of other instances' sensed points resting on it is
 #: picked after the free ones.
