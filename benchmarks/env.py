@@ -34,6 +34,7 @@ from _provenance import header_lines  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 OUR_ENV = "mks_sim/Grasp-v1"
+OUR_SLEEP = f"{OUR_ENV} sleep=True"  # resting bodies sleep (opt-in; docs/env.md "Speed")
 CAMERA = 84  # pixels, square, as dm_control's vision tasks
 
 
@@ -79,13 +80,13 @@ def _loop(
     return step_s, resets, reset_s
 
 
-def bench_ours(n: int, camera: bool, seed: int) -> Row:
+def bench_ours(n: int, camera: bool, seed: int, sleep: bool = False) -> Row:
     import gymnasium as gym
 
     import mks_sim  # noqa: F401  (registers the envs)
 
-    kw = {"observe_image": True, "image_size": (CAMERA, CAMERA)} if camera else {}
-    env = gym.make(OUR_ENV, object="cube", max_episode_steps=n + 1, **kw)
+    kw: dict = {"observe_image": True, "image_size": (CAMERA, CAMERA)} if camera else {}
+    env = gym.make(OUR_ENV, object="cube", max_episode_steps=n + 1, sleep=sleep, **kw)
     env.action_space.seed(seed)
     loc: list[float] = []
 
@@ -103,7 +104,7 @@ def bench_ours(n: int, camera: bool, seed: int) -> Row:
     finally:
         env.close()
     note = f"reset: localization {np.mean(loc):.2f} s, rest {reset_s / resets - np.mean(loc):.2f} s"
-    return Row(OUR_ENV, _cam(camera), n, step_s, dt, resets, reset_s, note)
+    return Row(OUR_SLEEP if sleep else OUR_ENV, _cam(camera), n, step_s, dt, resets, reset_s, note)
 
 
 def _fix_gymnasium_robotics() -> None:
@@ -211,6 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--steps", type=int, default=600, help="timed steps per env")
     p.add_argument("--vector-steps", type=int, default=150, help="timed steps of vector envs")
     p.add_argument("--quick", action="store_true", help="100 steps, 40 vector steps")
+    p.add_argument("--no-vector", action="store_true", help="skip the vector-env scaling")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=RESULTS / "env.md")
     args = p.parse_args(argv)
@@ -219,12 +221,15 @@ def main(argv: list[str] | None = None) -> int:
     load_before = os.getloadavg()
     rows: list[Row] = []
     for camera in (False, True):
-        for bench in (bench_ours, bench_fetch, bench_dm_control):
+        benches: list[Callable[[int, bool, int], Row]] = [bench_ours]
+        if not camera:  # sleeping saves physics time, which a camera step does not spend
+            benches.append(lambda n, camera, seed: bench_ours(n, camera, seed, sleep=True))
+        for bench in (*benches, bench_fetch, bench_dm_control):
             row = bench(n, camera, args.seed)
             rows.append(row)
             print(f"{row.name:32s} camera {row.camera:6s} {row.steps_per_s:8.1f} steps/s "
                   f"{row.sim_per_wall:6.2f} sim-s/wall-s", file=sys.stderr, flush=True)  # fmt: skip
-    vector = {k: bench_vector(nv, k, args.seed) for k in (1, 2)}
+    vector = {} if args.no_vector else {k: bench_vector(nv, k, args.seed) for k in (1, 2)}
     for k, (rate, _) in vector.items():
         print(f"async vector env x{k}: {rate:.1f} steps/s", file=sys.stderr, flush=True)
     _write(args.out, header, load_before, rows, vector, nv)
@@ -237,7 +242,7 @@ def _write(
     header: list[str],
     load_before: tuple[float, float, float],
     rows: list[Row],
-    vector: dict[int, tuple[float, float]],
+    vector: dict[int, tuple[float, float]],  # empty: not measured
     nv: int,
 ) -> None:
     lines = ["# Env throughput (issue 11)", "", *header, ""]
@@ -263,7 +268,17 @@ def _write(
             f"- camera {camera}: ours / Fetch = {ratio:.2f} sim-s per wall-s "
             f"(goal >= {factor:g}: {met})"
         )
+        slept = next((r for r in rows if r.camera == camera and r.name == OUR_SLEEP), None)
+        if slept is not None:
+            goals.append(
+                f"  - with `sleep=True`: {slept.sim_per_wall / fetch.sim_per_wall:.2f} "
+                f"(goal >= {factor:g}: {'met' if slept.sim_per_wall >= factor * fetch.sim_per_wall else 'NOT met'})"
+            )
     lines += ["", "Goals:", "", *goals, ""]
+    if not vector:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text("\n".join([*lines, "Vector envs: not measured (`--no-vector`).", ""]))
+        return
     r1, r2 = vector[1][0], vector[2][0]
     lines += [
         f'Async vector env (`gym.make_vec("{OUR_ENV}", vectorization_mode="async", '
