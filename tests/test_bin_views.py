@@ -228,3 +228,12 @@ def test_models_folder_object_in_the_bin(tmp_path, capsys) -> None:
     # measured: 3 found, 2 within 5 mm / 5 degrees (one wedge flipped end for end)
     assert rec["object"] == "wedge" and rec["present"] == 3 and rec["correct"] >= 2, rec
     assert main(argv[:-3] + ["--json"]) != 0  # without the folder: an unknown object
+
+
+@pytest.mark.slow
+def test_range_finder_and_wrist_camera_failed_fall_back_to_the_fixed_cameras() -> None:
+    world, devices, robot = _picker(3, fail=("range_finder", "wrist_camera"))
+    with devices:
+        robot.sense()
+    assert set(robot.faults) == {"range_finder", "wrist_camera"}
+    assert robot.sensed.provenance["Fused_Points"] == "Stereo_View" and robot.views == 1

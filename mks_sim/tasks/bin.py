@@ -463,9 +463,9 @@ class BinPicker:
     def sense(self) -> list[Any]:
         """Every instance found, best score first (``Instance``), from one view or more.
 
-        The first view is the range finder's (the wrist camera from where the arm is when the
-        range finder fails). When the best instance scores below the fused sensor's
-        ``rescan_below`` or fewer than ``min_pad_points`` sensed points lie near a pad contact
+        The first view is the range finder's (when it fails, the wrist camera's from the first
+        reachable viewpoint; with both failed, the fixed cameras: the sensor's alternates).
+        When the best instance scores below the fused sensor's ``rescan_below`` or fewer than ``min_pad_points`` sensed points lie near a pad contact
         of its best grasp, the arm takes the wrist camera to the candidate viewpoint that sees
         most of that instance's predicted surface not seen yet, and the views are fused and
         localized again (up to ``max_views``). ``views`` and ``view_log`` say what was done;
@@ -510,7 +510,7 @@ class BinPicker:
                 {"reason": why, "taken": True, "viewpoint": [round(float(v), 4) for v in moved],
                  "points_before": len(before.points), "points_after": len(self.sensed.points)}
             )  # fmt: skip
-        self.views = self._held_views(held)
+        self.views = self._held_views(held) or 1  # none held: a fixed camera's one view
         self.faults_seen.update(self.faults)
         self.perception_s = time.perf_counter() - t
         return list(self.sensed.instances.instances)
@@ -539,9 +539,10 @@ class BinPicker:
     def _localize(self, held: dict[str, Any]) -> Any:
         from mks_sim.localization.instances import localize_instances
 
+        # the held views stand for their devices; the others serve the sensor's alternates
         return localize_instances(
-            held, self.name, roi=self.roi, graph=self.graph, rng=self.rng, models=self.models,
-            sensor=VIEWS_SENSOR,
+            {**self.devices, **held}, self.name, roi=self.roi, graph=self.graph, rng=self.rng,
+            models=self.models, sensor=VIEWS_SENSOR,
         )  # fmt: skip
 
     def _needs_view(self, *, scanned: bool = True) -> str:
