@@ -53,38 +53,58 @@ def test_good_file_defaults(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("old", "new", "field"),
+    ("old", "new", "message"),
     [
-        ('scene = "scene2"\n', "", "'scene'"),
-        ('matcher = "rotinv"', 'matcher = "magic"', "'matcher'"),
-        ('grasp_type = "antipodal"', 'grasp_type = "suction"', "'action.grasp_type'"),
-        ("lift_height_m = 0.1", 'lift_height_m = "high"', "'action.lift_height_m'"),
-        ("lift_height_m = 0.1", "lift_height_m = 3.0", "'action.lift_height_m'"),
-        ("retries = 1", "retries = -1", "'action.retries'"),
-        ("retries = 1", "retries = 1\ncolour = 3", "'action.colour'"),
-        ('object = "cube"', 'object = "cube"\nspeed = 2', "'speed'"),
+        ('scene = "scene2"\n', "", "field 'scene': expected a non-empty string, got nothing"),
+        ('matcher = "rotinv"', 'matcher = "magic"', "field 'matcher': expected one of object"),
+        ('grasp_type = "antipodal"', 'grasp_type = "suction"',
+         "field 'action.grasp_type': expected one of \\['antipodal'\\], got 'suction'"),
+        ("lift_height_m = 0.1", 'lift_height_m = "high"',
+         "field 'action.lift_height_m': expected a number, got 'high'"),
+        ("lift_height_m = 0.1", "lift_height_m = 3.0",
+         "field 'action.lift_height_m': expected a number <= 0.5, got 3.0"),
+        ("retries = 1", "retries = -1", "field 'action.retries': expected a number >= 0, got -1"),
+        ("retries = 1", "retries = 1\ncolour = 3",
+         "field 'action': expected only the keys .*, got 'colour'"),
+        ('object = "cube"', 'object = "cube"\nspeed = 2', "expected only the keys .*, got 'speed'"),
         # hand-written grasp geometry is gone (issue 10): its keys are unknown now
-        ('grasp_type = "antipodal"', 'grasp_type = "antipodal"\nfeature = "step"', "'action.feature'"),
+        ('grasp_type = "antipodal"', 'grasp_type = "antipodal"\nfeature = "step"',
+         "field 'action': expected only the keys .*, got 'feature'"),
     ],
-)
+)  # fmt: skip
 def test_bad_field_names_file_entry_and_field(
-    tmp_path: Path, old: str, new: str, field: str
+    tmp_path: Path, old: str, new: str, message: str
 ) -> None:
+    """Task files use the one message format of every spec file (mks_sim.specs.spec_error):
+    ``FILE: task 'NAME': field 'F': expected ..., got ...``."""
     assert old in GOOD
     path = _write(tmp_path, GOOD.replace(old, new, 1))
-    with pytest.raises(SpecError, match=rf"t\.toml: task 't1', field {field}"):
+    with pytest.raises(SpecError, match=rf"t\.toml: task 't1': {message}"):
         load_task_file(path)
 
 
+def test_task_errors_match_the_sensor_files_format(tmp_path: Path) -> None:
+    """The same mistake gives the same message shape in a task file and a sensor file."""
+    from mks_sim.specs import spec_error
+
+    path = _write(tmp_path, GOOD.replace("lift_height_m = 0.1", "lift_height_m = 3.0"))
+    with pytest.raises(SpecError) as exc:
+        load_task_file(path)
+    want = spec_error(path, "task 't1'", "action.lift_height_m", "a number <= 0.5", 3.0)
+    assert str(exc.value) == str(want)
+
+
 def test_bad_toml_and_empty(tmp_path: Path) -> None:
-    with pytest.raises(SpecError, match=r"bad\.toml: not valid TOML"):
+    with pytest.raises(SpecError, match=r"bad\.toml: malformed TOML"):
         load_task_file(_write(tmp_path, "[[task]\nname=", "bad.toml"))
-    with pytest.raises(SpecError, match=r"empty\.toml: expected at least one \[\[task\]\]"):
+    with pytest.raises(SpecError, match=r"empty\.toml: field 'task': expected at least one \[\[task\]\]"):
         load_task_file(_write(tmp_path, "", "empty.toml"))
-    with pytest.raises(SpecError, match=r"dup\.toml: task 't1', field 'name': duplicate"):
+    with pytest.raises(SpecError, match=r"dup\.toml: task 't1': field 'name': expected distinct"):
         load_task_file(
             _write(tmp_path, GOOD + GOOD.replace("[task.action]", "[task.action]"), "dup.toml")
         )
+    with pytest.raises(SpecError, match=r"x\.toml: task\[0\]: expected a table \[\[task\]\]"):
+        load_task_file(_write(tmp_path, "task = [1]", "x.toml"))
 
 
 def test_unknown_task(tmp_path: Path) -> None:

@@ -21,7 +21,10 @@ A task file (``tasks/*.toml``) holds one or more ``[[task]]`` entries::
     retries = 2               # re-localize and try again at most this many times
 
 Loading is strict: an unknown key, a missing key, a value of the wrong type or out of range
-raises :class:`~mks_sim.errors.SpecError` naming the file, the entry and the field.
+raises :class:`~mks_sim.errors.SpecError` naming the file, the entry and the field, in the
+one message format of sensor, model and scene files (:func:`mks_sim.specs.spec_error`)::
+
+    tasks/x.toml: task 'grasp_cube': field 'action.lift_height_m': expected a number <= 0.5, got 3.0
 """
 
 from __future__ import annotations
@@ -31,8 +34,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mks_sim.errors import NotFound, SpecError
+from mks_sim.errors import NotFound
 from mks_sim.resources import data_dir
+from mks_sim.specs import (
+    MISSING,
+    Where,
+    require_keys,
+    require_list,
+    require_number,
+    require_str,
+)
 
 GRASP_TYPES = ("antipodal",)
 ACTION_KINDS = ("grasp",)
@@ -97,108 +108,58 @@ _ACTION_FIELDS: dict[str, type] = {
 }
 
 
-def _err(path: Path | str, entry: str, field: str, msg: str) -> SpecError:
-    return SpecError(f"{path}: task {entry!r}, field {field!r}: {msg}")
-
-
-def _get_str(raw: dict[str, Any], key: str, path: Path | str, entry: str) -> str:
-    if key not in raw:
-        raise _err(path, entry, key, "missing (expected a string)")
-    value = raw[key]
-    if not isinstance(value, str) or not value:
-        raise _err(path, entry, key, f"expected a non-empty string, got {value!r}")
-    return value
-
-
-def _parse_action(raw: Any, path: Path | str, entry: str) -> GraspAction:
-    if not isinstance(raw, dict):
-        raise _err(path, entry, "action", f"expected a table [task.action], got {raw!r}")
-    unknown = set(raw) - set(_ACTION_FIELDS)
-    if unknown:
-        raise _err(
-            path,
-            entry,
-            f"action.{sorted(unknown)[0]}",
-            f"unknown key; expected one of {sorted(_ACTION_FIELDS)}",
-        )
-    values: dict[str, Any] = {}
-    for key, typ in _ACTION_FIELDS.items():
-        if key not in raw:
-            continue
-        value = raw[key]
-        if typ is float and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        if not isinstance(value, typ) or isinstance(value, bool):
-            raise _err(path, entry, f"action.{key}", f"expected {typ.__name__}, got {value!r}")
-        values[key] = value
-    action = GraspAction(**values)
-    if action.kind not in ACTION_KINDS:
-        raise _err(
-            path, entry, "action.kind", f"expected one of {ACTION_KINDS}, got {action.kind!r}"
-        )
-    if action.grasp_type not in GRASP_TYPES:
-        raise _err(
-            path,
-            entry,
-            "action.grasp_type",
-            f"expected one of {GRASP_TYPES}, got {action.grasp_type!r}",
-        )
-    for key, low, high in (
-        ("approach_height_m", 0.02, 0.5),
-        ("lift_height_m", 0.0, 0.5),
-    ):
-        value = getattr(action, key)
-        if not low <= value <= high:
-            raise _err(
-                path, entry, f"action.{key}", f"expected {low} <= value <= {high}, got {value}"
-            )
-    if not 0 <= action.retries <= 10:
-        raise _err(
-            path, entry, "action.retries", f"expected 0 <= retries <= 10, got {action.retries}"
-        )
-    return action
+def _parse_action(raw: Any, where: Where) -> GraspAction:
+    """``[task.action]`` (``where``: the task entry, fields under ``action``)."""
+    at = where.at("action")
+    require_keys(raw, tuple(_ACTION_FIELDS), at)
+    values: dict[str, Any] = {
+        "kind": require_str(raw, "kind", at, default="grasp", choices=ACTION_KINDS),
+        "grasp_type": require_str(raw, "grasp_type", at, default="antipodal",
+                                  choices=GRASP_TYPES),
+        "approach_height_m": float(require_number(raw, "approach_height_m", at, 0.02, 0.5,
+                                                  default=0.12)),
+        "lift_height_m": float(require_number(raw, "lift_height_m", at, 0.0, 0.5,
+                                              default=0.10)),
+        "retries": require_number(raw, "retries", at, 0, 10, default=2, integer=True),
+    }  # fmt: skip
+    return GraspAction(**values)
 
 
 def parse_task(raw: Any, path: Path | str = "<string>", index: int = 0) -> TaskSpec:
     """Validate one raw ``[[task]]`` table and return its :class:`TaskSpec`.
 
     Raises:
-        SpecError: naming ``path``, the entry (task name or ``#index``) and the field.
+        SpecError: in the one message format of every spec file
+            (:func:`mks_sim.specs.spec_error`): ``FILE: task 'NAME': field 'F': expected
+            ..., got ...`` (``task[INDEX]`` when the entry has no usable name).
     """
+    at_index = Where(path, f"task[{index}]")
     if not isinstance(raw, dict):
-        raise _err(path, f"#{index}", "", f"expected a table, got {type(raw).__name__}")
+        raise at_index.error(None, "a table [[task]]", raw)
     raw_name = raw.get("name")
-    entry: str = raw_name if isinstance(raw_name, str) else f"#{index}"
-    unknown = set(raw) - _TASK_KEYS
-    if unknown:
-        raise _err(
-            path, entry, sorted(unknown)[0], f"unknown key; expected one of {sorted(_TASK_KEYS)}"
-        )
-    name = _get_str(raw, "name", path, entry)
-    obj_name = _get_str(raw, "object", path, entry)
+    where = Where(path, "task", raw_name) if isinstance(raw_name, str) and raw_name else at_index
+    require_keys(raw, sorted(_TASK_KEYS), where)
+    name = require_str(raw, "name", where)
+    obj_name = require_str(raw, "object", where)
+    scene = require_str(raw, "scene", where)
+    model = require_str(raw, "model", where)
     from mks_sim.models.objects import load_object
 
     kinds = load_object(obj_name).kinds  # NotFound lists the database's objects
-    matcher = _get_str(raw, "matcher", path, entry) if "matcher" in raw else kinds[0]
+    matcher = require_str(raw, "matcher", where, default=kinds[0])
     if matcher not in kinds:
-        raise _err(
-            path, entry, "matcher", f"expected one of object {obj_name!r}'s kinds {list(kinds)}, got {matcher!r}"
-        )
-    description = raw.get("description", "")
-    if not isinstance(description, str):
-        raise _err(path, entry, "description", f"expected a string, got {description!r}")
-    remove = raw.get("remove", [])
-    if not isinstance(remove, list) or not all(isinstance(r, str) and r for r in remove):
-        raise _err(path, entry, "remove", f"expected a list of object names, got {remove!r}")
+        raise where.error("matcher", f"one of object {obj_name!r}'s kinds {list(kinds)}", matcher)
+    description = require_str(raw, "description", where, default="", allow_empty=True)
+    remove = require_list(raw, "remove", where, default=())
     if "action" not in raw:
-        raise _err(path, entry, "action", "missing (expected a table [task.action])")
+        raise where.error("action", "a table [task.action]", MISSING)
     return TaskSpec(
         name=name,
-        scene=_get_str(raw, "scene", path, entry),
+        scene=scene,
         object=obj_name,
-        model=_get_str(raw, "model", path, entry),
+        model=model,
         matcher=matcher,
-        action=_parse_action(raw["action"], path, entry),
+        action=_parse_action(raw["action"], where),
         description=description,
         source=str(path),
         remove=tuple(remove),
@@ -212,24 +173,23 @@ def load_task_file(path: str | Path) -> list[TaskSpec]:
         SpecError: unreadable TOML, no ``[[task]]`` entries, or a bad entry.
     """
     path = Path(path)
+    top = Where(path)
     try:
         with path.open("rb") as fh:
             doc = tomllib.load(fh)
     except OSError as exc:
-        raise SpecError(f"{path}: cannot read task file: {exc}") from exc
+        raise top.fail(f"cannot read task file: {exc}") from exc
     except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"{path}: not valid TOML: {exc}") from exc
-    unknown = set(doc) - {"task"}
-    if unknown:
-        raise SpecError(f"{path}: unknown top-level key {sorted(unknown)[0]!r}; expected [[task]]")
+        raise top.fail(f"malformed TOML: {exc}") from exc
+    require_keys(doc, ["task"], top)
     entries = doc.get("task")
     if not isinstance(entries, list) or not entries:
-        raise SpecError(f"{path}: expected at least one [[task]] entry, got {entries!r}")
+        raise top.error("task", "at least one [[task]] entry", entries if entries else MISSING)
     tasks = [parse_task(raw, path, i) for i, raw in enumerate(entries)]
     names = [t.name for t in tasks]
     for name in names:
         if names.count(name) > 1:
-            raise _err(path, name, "name", "duplicate task name")
+            raise Where(path, "task", name).error("name", "distinct task names", name)
     return tasks
 
 
@@ -243,9 +203,9 @@ def load_tasks(folder: str | Path | None = None) -> dict[str, TaskSpec]:
     for path in sorted(folder.glob("*.toml")):
         for task in load_task_file(path):
             if task.name in tasks:
-                raise _err(
-                    path, task.name, "name", f"duplicate of the task in {tasks[task.name].source}"
-                )
+                first = tasks[task.name].source
+                where = Where(path, "task", task.name)
+                raise where.error("name", f"a name no task of {first} has", task.name)
             tasks[task.name] = task
     return tasks
 
