@@ -91,6 +91,7 @@ class FreeformConfig:
             keypoint / model point; default: the 20th percentile over the model's candidate
             points, at least 0.01 (a plane with noise sigma = s / 4 stays below).
         n_views: virtual views of the model for view-dependent signatures.
+        max_keypoints: at most this many scene keypoints, the most salient (None: all).
         matches_per_keypoint: model points paired with each scene keypoint.
         distance_tolerance: rigid distance consistency (default ``3 s``).
         min_side: minimum triangle side (default ``0.1 size``).
@@ -118,6 +119,7 @@ class FreeformConfig:
     model_point_spacing: float | None = None
     saliency_floor: float | None = None
     n_views: int = 20
+    max_keypoints: int | None = 300
     matches_per_keypoint: int = 8
     distance_tolerance: float | None = None
     min_side: float | None = None
@@ -462,7 +464,7 @@ class FreeformModel:
         inlier_distance: float | None = None,
         max_icp: int = 20,
         prescreen: int | None = None,
-        full_refine: int = 3,
+        full_refine: int = 2,
     ) -> list[VerifiedHypothesis]:
         """Hypotheses refined by ICP and scored (``mks_sim.models.refine``), best first.
 
@@ -594,8 +596,13 @@ class FreeformModel:
             n = pca_normals_signed(scene_points, scene_normals, p, cfg.radii[0])
         sig = local_signatures(scene_points, p, n, cfg.radii)
         assert cfg.saliency_floor is not None
-        kp = nms_keypoints(p, _saliency(sig), cfg.keypoint_radius, cfg.saliency_floor)
+        sal = _saliency(sig)
+        kp = nms_keypoints(p, sal, cfg.keypoint_radius, cfg.saliency_floor)
         kp = kp[np.all(np.isfinite(sig[kp]), axis=1)]
+        if cfg.max_keypoints is not None and len(kp) > cfg.max_keypoints:
+            # the most salient (noise raises every point's variation; the pairing consistency
+            # matrix grows with the square of the keypoints)
+            kp = np.sort(kp[np.argsort(-sal[kp], kind="stable")[: cfg.max_keypoints]])
         return sub[kp], sig[kp], n[kp]
 
     def detect(
