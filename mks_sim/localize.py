@@ -21,6 +21,7 @@ model) implement the protocol themselves.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import time
@@ -31,7 +32,7 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import ConvexHull, cKDTree
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from mks_sim.errors import DataError, MksError, NotFound
 from mks_sim.geometry.transforms import cube_rotations, make_transform
@@ -140,6 +141,22 @@ class ModelFace:
     normal: FloatArray
     offset: float
     points: FloatArray
+
+    @functools.cached_property
+    def extremes(self) -> FloatArray:
+        """(E, 3) the samples on the convex hull of the face (in its plane): the extent of
+        the face along any direction (ptp of the projections) is the extent of these."""
+        pts = np.asarray(self.points, dtype=np.float64)
+        if len(pts) < 4:
+            return pts
+        n = np.asarray(self.normal, dtype=np.float64)
+        u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        try:
+            hull = ConvexHull(np.c_[pts @ u, pts @ np.cross(n, u)])
+        except QhullError:  # degenerate (collinear) samples: keep them all
+            return pts
+        return pts[hull.vertices]
 
 
 @dataclass(frozen=True, eq=False)
@@ -312,6 +329,18 @@ class PolyhedralModel:
                 nrm.append(c.normals[list(perm)])
         return np.array(pts).reshape(-1, 3), np.array(nrm).reshape(-1, 3, 3)
 
+    @functools.cached_property
+    def face_extremes(self) -> tuple[FloatArray, FloatArray]:
+        """(F, E, 3) every face's hull samples (:attr:`ModelFace.extremes`, padded by
+        repeating the last) and (F,) the face offsets: face extents in arrays."""
+        ex = [f.extremes for f in self.faces]
+        width = max((len(e) for e in ex), default=1)
+        out = np.zeros((len(ex), width, 3))
+        for i, e in enumerate(ex):
+            out[i, : len(e)] = e
+            out[i, len(e) :] = e[-1]
+        return out, np.array([f.offset for f in self.faces], dtype=np.float64)
+
     @property
     def face_pairs(self) -> tuple[NDArray[np.intp], NDArray[np.intp], FloatArray, FloatArray]:
         """Ordered pairs of non-parallel faces: (K,) first and second face indices, (K,)
@@ -442,23 +471,29 @@ def vertex_hypotheses(
         R, kept = R[good], sel[good]
         t = detected.points[di] - np.einsum("kij,kj->ki", R, c_point[kept])  # (K'', 3)
         moved = np.einsum("kij,vj->kvi", R, cpts) + t[:, None, :]  # (K'', V, 3)
-        dist, j = det_tree.query(moved.reshape(-1, 3), distance_upper_bound=vote_distance)
-        dist, j = dist.reshape(len(R), -1), j.reshape(len(R), -1)
+        _, j = det_tree.query(moved.reshape(-1, 3), distance_upper_bound=vote_distance)
+        j = j.reshape(len(R), -1)  # (K'', V) detected vertex of each model corner (n: none)
+        # votes: distinct detected vertexes hit, per hypothesis (sorted rows, no loop)
+        js = np.sort(j, axis=1)
+        n_det = len(detected)
+        votes = (js[:, 0] < n_det).astype(np.intp)
+        votes += ((js[:, 1:] != js[:, :-1]) & (js[:, 1:] < n_det)).sum(axis=1)
         for k in range(len(R)):
-            hit = np.isfinite(dist[k])
-            corr = np.column_stack([j[k, hit], np.flatnonzero(hit)]).astype(np.int64)
-            corr = corr[np.unique(corr[:, 0], return_index=True)[1]]
-            out.append((len(corr), make_transform(R[k], t[k]), corr))
+            out.append((int(votes[k]), make_transform(R[k], t[k]), j[k]))
     if rotinv:
         out.extend(_rotinv_hypotheses(model, detected, vote_distance))
     if not out:
         return []
     # Rank by votes; break ties among the first ``keep`` by a quick inlier fraction.
     sub = scene_points[:: max(1, len(scene_points) // 100)]
-    by_votes = sorted(out, key=lambda o: -o[0])[:keep]
-    quick = batch_inlier_fractions(
-        model.surface, sub, np.stack([o[1] for o in by_votes]), vote_distance / 2
-    )
+    by_votes = [
+        (v, T, _corner_correspondences(c, len(detected)) if c.ndim == 1 else c)
+        for v, T, c in sorted(out, key=lambda o: -o[0])[:keep]
+    ]
+    mats = np.stack([o[1] for o in by_votes])
+    # one quick score per distinct placement (poses equal up to a model symmetry share it)
+    first, inverse = _distinct_placements(mats, model.symmetries(), vote_distance / 2)
+    quick = batch_inlier_fractions(model.surface, sub, mats[first], vote_distance / 2)[inverse]
     order = sorted(range(len(by_votes)), key=lambda k: (-by_votes[k][0], -quick[k]))
     ranked = [by_votes[k] for k in order]
     ref = model.vertexes.mean(axis=0)
@@ -466,6 +501,44 @@ def vertex_hypotheses(
         PoseHypothesis(T, T[:3, :3] @ ref + T[:3, 3], votes=v, correspondences=c)
         for v, T, c in ranked
     ]
+
+
+def _distinct_placements(
+    matrices: FloatArray, symmetries: FloatArray | None, tolerance: float
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Poses that are the same placement up to a model symmetry, grouped in arrays: each
+    rotation is replaced by its symmetric image closest to a fixed generic rotation, then
+    rotations (to 0.01) and translations (to ``tolerance``) are rounded and compared.
+
+    Returns:
+        (first index of each group, (K,) group of each pose); poses near a rounding boundary
+        may stay apart (harmless: they are then scored twice).
+    """
+    R = matrices[:, :3, :3]
+    if symmetries is not None and len(symmetries):
+        S = np.concatenate([np.eye(3)[None], np.asarray(symmetries, dtype=np.float64)])
+        RS = np.einsum("kij,sjl->ksil", R, S)  # (K, S, 3, 3)
+        best = np.einsum("ksij,ij->ks", RS, _GENERIC_ROTATION).argmax(axis=1)
+        R = RS[np.arange(len(R)), best]
+    key = np.concatenate(
+        [np.round(R.reshape(len(R), 9) / 0.01), np.round(matrices[:, :3, 3] / tolerance)], axis=1
+    )
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    return first, inverse.reshape(-1)
+
+
+#: A fixed rotation in general position (canonical symmetric images in _distinct_placements).
+_GENERIC_ROTATION = np.array(
+    [[0.36, 0.48, -0.80], [-0.80, 0.60, 0.00], [0.48, 0.64, 0.60]], dtype=np.float64
+)
+
+
+def _corner_correspondences(j: NDArray[np.intp], n_detected: int) -> NDArray[np.int64]:
+    """(C, 2) (detected vertex, model corner) pairs from the detected vertex each model corner
+    landed on (``n_detected``: none), the first corner per detected vertex."""
+    hit = np.flatnonzero(j < n_detected)
+    corr = np.column_stack([j[hit], hit]).astype(np.int64)
+    return corr[np.unique(corr[:, 0], return_index=True)[1]]
 
 
 def _frame(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -505,7 +578,7 @@ def plane_pair_hypotheses(
         keep: hypotheses returned (best quick inlier fraction first).
     """
     sub = scene_points[:: max(1, len(scene_points) // 80)]
-    faces = model.faces
+    extremes, offsets = model.face_extremes
     pa, pb, pcos, pframes = model.face_pairs
     out: list[tuple[float, FloatArray]] = []
     cos_tol = np.sin(np.radians(max_angle_deg))
@@ -523,28 +596,35 @@ def plane_pair_hypotheses(
         if sel.size == 0:
             continue
         Rs = np.einsum("ij,kjl->kil", frame_s, np.transpose(pframes[sel], (0, 2, 1)))
-        for k, R in zip(sel, Rs):
-            A, B = faces[pa[k]], faces[pb[k]]
-            ae, af = A.points @ (R.T @ e), A.points @ (R.T @ f_dir)
-            if np.ptp(pe) > np.ptp(ae) + slack or np.ptp(pf) > np.ptp(af) + slack:
-                continue
-            if q_pts is not None:
-                g = np.cross(Q.normal, e)  # Q's in-plane direction across the shared edge
-                qe, qg = q_pts @ e, q_pts @ g
-                be, bg = B.points @ (R.T @ e), B.points @ (R.T @ g)
-                if np.ptp(qe) > np.ptp(be) + slack or np.ptp(qg) > np.ptp(bg) + slack:
-                    continue
-            mid_s = (pe.max() + pe.min()) / 2
-            mid_m = (ae.max() + ae.min()) / 2
-            lhs = np.stack([P.normal, Q.normal, e])
-            rhs = np.array([P.offset - A.offset, Q.offset - B.offset, mid_s - mid_m])
-            try:
-                t = np.linalg.solve(lhs, rhs)
-            except np.linalg.LinAlgError:
-                continue
-            if not (np.all(np.isfinite(t)) and np.all(np.isfinite(R))):
-                continue
-            out.append((0.0, make_transform(R, t)))
+        # face extents along the scene directions, every candidate pairing at once
+        A_ex, B_ex = extremes[pa[sel]], extremes[pb[sel]]  # (K, E, 3)
+        ae = np.einsum("kpi,kji,j->kp", A_ex, Rs, e)  # A.points @ (R^T e)
+        af = np.einsum("kpi,kji,j->kp", A_ex, Rs, f_dir)
+        ok = (np.ptp(pe) <= np.ptp(ae, axis=1) + slack) & (np.ptp(pf) <= np.ptp(af, axis=1) + slack)
+        if q_pts is not None:
+            g = np.cross(Q.normal, e)  # Q's in-plane direction across the shared edge
+            qe, qg = q_pts @ e, q_pts @ g
+            be = np.einsum("kpi,kji,j->kp", B_ex, Rs, e)
+            bg = np.einsum("kpi,kji,j->kp", B_ex, Rs, g)
+            ok &= (np.ptp(qe) <= np.ptp(be, axis=1) + slack) & (
+                np.ptp(qg) <= np.ptp(bg, axis=1) + slack
+            )
+        if not ok.any():
+            continue
+        lhs = np.stack([P.normal, Q.normal, e])
+        try:
+            lhs_inv = np.linalg.inv(lhs)
+        except np.linalg.LinAlgError:
+            continue
+        mid_s = (pe.max() + pe.min()) / 2
+        mid_m = (ae.max(axis=1) + ae.min(axis=1)) / 2
+        rhs = np.stack(
+            [P.offset - offsets[pa[sel]], Q.offset - offsets[pb[sel]], mid_s - mid_m], axis=1
+        )
+        t = rhs @ lhs_inv.T  # (K, 3)
+        ok &= np.all(np.isfinite(t), axis=1) & np.all(np.isfinite(Rs), axis=(1, 2))
+        for k in np.flatnonzero(ok):
+            out.append((0.0, make_transform(Rs[k], t[k])))
     if out:
         quick = batch_inlier_fractions(
             model.surface, sub, np.stack([o[1] for o in out]), inlier_distance

@@ -617,7 +617,9 @@ def _refine_near(
     if not hyps or len(objects) < 10:
         return []
     pts = np.asarray(model.surface_points(), dtype=np.float64)
-    surface = ModelSurface.from_arrays(pts, model.surface_normals())
+    surface = getattr(model, "surface", None)
+    if not isinstance(surface, ModelSurface) or surface.points is not pts:
+        surface = ModelSurface.from_arrays(pts, model.surface_normals())
     centre = pts.mean(axis=0)
     radius = float(np.max(np.linalg.norm(pts - centre, axis=1)))
     out: list[PoseHypothesis] = []

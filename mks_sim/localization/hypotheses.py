@@ -197,6 +197,9 @@ def sphere_centre_hough(
     return out
 
 
+_DIAG3 = np.diag_indices(3)
+
+
 def fit_fixed_sphere(
     objects: FloatArray, tree: cKDTree, c0: FloatArray, radius: float, d: float
 ) -> tuple[FloatArray, float, int] | None:
@@ -206,32 +209,36 @@ def fit_fixed_sphere(
     f_scale = max(d / 3.0, 1e-4)
     for _ in range(4):
         idx = tree.query_ball_point(c, r=radius + band)
-        pts = objects[idx]
-        if len(pts) < 20:
+        if len(idx) < 20:
             return None
-        shell = np.abs(np.linalg.norm(pts - c, axis=1) - radius) < band
+        pts = objects[idx]
+        diff = pts - c
+        shell = np.abs(np.sqrt(np.einsum("ij,ij->i", diff, diff)) - radius) < band
         pts = pts[shell]
         if len(pts) < 20:
             return None
         start = c.copy()
-        # Gauss-Newton with soft-L1 (IRLS) weights on r_i = |p_i - c| - R
+        # Gauss-Newton with soft-L1 (IRLS) weights on r_i = |p_i - c| - R; a micrometre step
+        # ends it (fits to other surfaces oscillate below that and are rejected later)
         for _ in range(20):
             diff = pts - c
-            dist = np.maximum(np.linalg.norm(diff, axis=1), 1e-12)
+            dist = np.maximum(np.sqrt(np.einsum("ij,ij->i", diff, diff)), 1e-12)
             u = diff / dist[:, None]
             r = dist - radius
             w = 1.0 / np.sqrt(1.0 + (r / f_scale) ** 2)
             wu = u * w[:, None]
-            H = wu.T @ u + 1e-12 * np.eye(3)
+            H = wu.T @ u
+            H[_DIAG3] += 1e-12
             delta = np.linalg.solve(H, wu.T @ r)
             c = c + delta
-            if float(np.linalg.norm(delta)) < 1e-7:
+            if float(np.sqrt(delta @ delta)) < 1e-6:
                 break
         step = float(np.linalg.norm(c - start))
         band = max(1.5 * d, 0.5 * band)
         if step < 1e-5:
             break
-    r = np.linalg.norm(objects[tree.query_ball_point(c, r=radius + d)] - c, axis=1) - radius
+    q = objects[tree.query_ball_point(c, r=radius + d)] - c
+    r = np.sqrt(np.einsum("ij,ij->i", q, q)) - radius
     inl = np.abs(r) <= d
     if inl.sum() < 20:
         return None

@@ -32,6 +32,11 @@ IntArray = NDArray[np.intp]
 #: Part of a model's surface one view is assumed to show at least (see
 #: :data:`mks_sim.localize.VISIBLE_FRACTION`).
 VISIBLE_FRACTION = 0.2
+#: Scene points of a segment the candidates' full ICP and scores use (a random subset; the
+#: final polish of the best candidate uses up to 1000 near it).
+ICP_POINTS = 500
+#: Scene points of the coarse ICP stage (6 iterations from every pre-screened start).
+COARSE_POINTS = 300
 
 
 @dataclass(frozen=True, eq=False)
@@ -194,7 +199,8 @@ def polyhedral_candidates(
             max_icp=max_icp,
             prescreen=prescreen,
             full_refine=2,
-            max_scene_points=800,
+            max_scene_points=ICP_POINTS,
+            coarse_points=COARSE_POINTS,
             rng=rng,
         )
         t_ver += time.perf_counter() - t
@@ -223,6 +229,8 @@ def polyhedral_candidates(
                 max_icp=max(4, max_icp // 2),
                 prescreen=prescreen,
                 full_refine=2,
+                max_scene_points=ICP_POINTS,
+                coarse_points=COARSE_POINTS,
                 rng=rng,
             )
             t_ver += time.perf_counter() - t

@@ -385,6 +385,7 @@ def verify_hypotheses(
     full_refine: int = 3,
     max_scene_points: int = 1500,
     prescreen: int | None = None,
+    coarse_points: int = 500,
     rng: np.random.Generator | None = None,
 ) -> list[VerifiedHypothesis]:
     """Refine (ICP), score and rank hypotheses; report symmetric equivalents once.
@@ -406,6 +407,7 @@ def verify_hypotheses(
             (:func:`batch_inlier_fractions` on 300 scene points) and only this many of the
             best get the coarse ICP; None runs the coarse ICP on every start (up to
             ``max_icp``).
+        coarse_points: scene points of the coarse ICP stage.
         rng: generator for that subset (default seeded 0).
 
     Returns:
@@ -439,22 +441,32 @@ def verify_hypotheses(
     start_ids = start_ids[:max_icp]
     # Two stages: a few coarse ICP iterations on a subset for every start, then full
     # refinement of the most promising ones only.
-    coarse_scene = scene[rng.permutation(len(scene))[:500]]
     coarse: list[tuple[float, int, FloatArray]] = []
-    for i in start_ids:
-        icp = icp_point_to_plane(
-            surface, coarse_scene, ordered[i].matrix, max_distance=gate, max_iterations=6
-        )
-        coarse.append(
-            (score_pose(surface, coarse_scene, icp.matrix, inlier_distance)[0], i, icp.matrix)
-        )
-    coarse.sort(key=lambda c: -c[0])
+    extra_iterations = 0
+    if len(start_ids) <= full_refine:
+        # every start is fully refined: the coarse stage would only order them
+        coarse = [(0.0, i, ordered[i].matrix) for i in start_ids]
+        extra_iterations = 6
+    else:
+        coarse_scene = scene[rng.permutation(len(scene))[:coarse_points]]
+        for i in start_ids:
+            icp = icp_point_to_plane(
+                surface, coarse_scene, ordered[i].matrix, max_distance=gate, max_iterations=6
+            )
+            coarse.append(
+                (score_pose(surface, coarse_scene, icp.matrix, inlier_distance)[0], i, icp.matrix)
+            )
+        coarse.sort(key=lambda c: -c[0])
     refined: list[tuple[PoseHypothesis, float, list[FloatArray]]] = []
     for rank, (_, i, T_coarse) in enumerate(coarse):
         h = ordered[i]
         if rank < full_refine:
             icp = icp_point_to_plane(
-                surface, scene, T_coarse, max_distance=gate, max_iterations=icp_iterations
+                surface,
+                scene,
+                T_coarse,
+                max_distance=gate,
+                max_iterations=icp_iterations + extra_iterations,
             )
             T_new = icp.matrix
         else:
