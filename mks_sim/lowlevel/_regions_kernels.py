@@ -109,3 +109,67 @@ def grow_regions(
                 refit_at = 2 * size
         rid += 1
     return labels, rid
+
+
+@nb.njit(cache=True)
+def ring_moments(
+    indptr: np.ndarray, indices: np.ndarray, c: np.ndarray, rings: int
+) -> np.ndarray:  # pragma: no cover - compiled
+    """(N, 6) covariances (xx xy xz yy yz zz) of every point's neighbourhood of ``rings`` hops
+    over the CSR graph (``indptr``, ``indices``; the point itself included), from the
+    (centred) points ``c``; the compiled twin of ``normals._pca_sparse(_ring_matrix(...))``."""
+    n = c.shape[0]
+    out = np.empty((n, 6))
+    stamp = np.full(n, -1, np.int64)
+    ring = np.empty(n, np.int64)
+    for i in range(n):
+        stamp[i] = i
+        ring[0] = i
+        lo = 0
+        hi = 1
+        for _ in range(rings):
+            end = hi
+            for k in range(lo, end):
+                p = ring[k]
+                for e in range(indptr[p], indptr[p + 1]):
+                    q = indices[e]
+                    if stamp[q] != i:
+                        stamp[q] = i
+                        ring[hi] = q
+                        hi += 1
+            lo = end
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for k in range(hi):
+            q = ring[k]
+            s0 += c[q, 0]
+            s1 += c[q, 1]
+            s2 += c[q, 2]
+        m0 = s0 / hi
+        m1 = s1 / hi
+        m2 = s2 / hi
+        a00 = 0.0
+        a01 = 0.0
+        a02 = 0.0
+        a11 = 0.0
+        a12 = 0.0
+        a22 = 0.0
+        for k in range(hi):
+            q = ring[k]
+            d0 = c[q, 0] - m0
+            d1 = c[q, 1] - m1
+            d2 = c[q, 2] - m2
+            a00 += d0 * d0
+            a01 += d0 * d1
+            a02 += d0 * d2
+            a11 += d1 * d1
+            a12 += d1 * d2
+            a22 += d2 * d2
+        out[i, 0] = a00 / hi
+        out[i, 1] = a01 / hi
+        out[i, 2] = a02 / hi
+        out[i, 3] = a11 / hi
+        out[i, 4] = a12 / hi
+        out[i, 5] = a22 / hi
+    return out

@@ -149,6 +149,28 @@ def _pca_sparse(pts: FloatArray, A: sparse.csr_array) -> tuple[FloatArray, Float
     return _smallest_eigen(cov)
 
 
+#: Points from which multi-ring neighbourhoods use the compiled kernel (when numba imports).
+_COMPILED_MIN_POINTS = 500
+
+
+def _ring_pca(pts: FloatArray, graph: GraphLike, rings: int) -> tuple[FloatArray, FloatArray]:
+    """Normals and surface variation over the neighbourhoods of ``rings`` SPG rings: one
+    sparse product for ring 1; more rings by the compiled breadth-first kernel
+    (:func:`mks_sim.lowlevel._regions_kernels.ring_moments`, no (N, N) ring matrix) when
+    numba imports, else by :func:`_pca_sparse` over :func:`_ring_matrix` (the reference)."""
+    from mks_sim.lowlevel import _gridknn
+
+    if rings < 2 or len(pts) < _COMPILED_MIN_POINTS or not _gridknn.available():
+        return _pca_sparse(pts, _ring_matrix(graph, rings))
+    from mks_sim.lowlevel._regions_kernels import ring_moments
+
+    adj = sparse.csr_array(graph.adjacency)
+    sym = sparse.csr_array(adj + adj.T)
+    c = np.ascontiguousarray(pts - pts.mean(axis=0), dtype=np.float64)
+    cov = ring_moments(sym.indptr.astype(np.int64), sym.indices.astype(np.int64), c, rings)
+    return _smallest_eigen(cov)
+
+
 def _smallest_eigen(cov: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Closed-form eigen-analysis of N symmetric 3x3 matrices given as (N, 6) upper
     triangles: the unit eigenvector of the smallest eigenvalue and ``lambda_0 / trace``.
@@ -227,9 +249,9 @@ def estimate_normals(
     pts = as_points(points, "estimate_normals: points", min_points=3)
     if graph is None:
         graph = build_graph(pts, m=m)
-    normals, curvature = _pca_sparse(pts, _ring_matrix(graph, normal_rings))
+    normals, curvature = _ring_pca(pts, graph, normal_rings)
     if curvature_rings != normal_rings:
-        _, curvature = _pca_sparse(pts, _ring_matrix(graph, curvature_rings))
+        _, curvature = _ring_pca(pts, graph, curvature_rings)
     if viewpoint is not None:
         vp = np.asarray(viewpoint, dtype=np.float64).reshape(3)
         toward = vp[None, :] - pts

@@ -160,8 +160,9 @@ def fit_plane(points: ArrayLike, iterations: int = 3) -> Plane:
     for _ in range(max(1, iterations)):
         sub = pts[keep]
         c = sub.mean(axis=0)
-        _, _, vt = np.linalg.svd(sub - c, full_matrices=False)
-        normal = vt[2]
+        d = sub - c
+        # the smallest principal axis: eigenvector of the 3x3 scatter (no (N, 3) SVD)
+        normal = np.linalg.eigh(d.T @ d)[1][:, 0]
         offset = float(normal @ c)
         r = np.abs(pts @ normal - offset)
         sigma = 1.4826 * np.median(r[keep])
