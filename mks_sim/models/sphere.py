@@ -16,7 +16,8 @@ translation to its centre. A sphere's orientation is not observable: hypotheses 
 identity rotation and ``symmetries()`` is None (compare positions only). ``match(rows)`` picks
 the Sphere_Detector rows of the model's radius.
 
-The database imports this module for kind ``"sphere"`` (its default ``mks_sim.models.<kind>``).
+The database's one model-kind table (:data:`~mks_sim.models.database.MODEL_KINDS`, a
+:class:`~mks_sim.registry.Registry`) names :func:`load_sphere_model` for kind ``"sphere"``.
 """
 
 from __future__ import annotations
@@ -29,7 +30,6 @@ import numpy as np
 
 from mks_sim.errors import DataError, SpecError
 from mks_sim.geometry.points import fibonacci_sphere
-from mks_sim.models.database import register_model_kind
 from mks_sim.models.pose import PoseHypothesis
 
 __all__ = ["SphereModel", "load_sphere_model"]
@@ -108,5 +108,3 @@ def load_sphere_model(entry: Mapping[str, Any], where: str) -> SphereModel:
         description=str(entry.get("description", "")),
     )
 
-
-register_model_kind("sphere", load_sphere_model)

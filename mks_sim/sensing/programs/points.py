@@ -22,9 +22,11 @@ Descriptions over a point stream (input: a stream whose first three fields are x
 - ``sphere_detector``: (x, y, z, radius) of sphere fits to curved regions.
 
 Objects are separated before grouping (the paper separates the cube-sphere pair "by the
-connectivity of the spatial proximity graph", section 4.1): points within ``table_margin_m``
-of the table plane ``z = table_z_m`` are dropped, the rest split into SPG components with
-edges no longer than ``gap_m``.
+connectivity of the spatial proximity graph", section 4.1): the one low-level representation
+(:class:`mks_sim.localization.representation.Representation`, built once per stream) fits the
+table plane near ``z = table_z_m``, drops the points within its band (at least
+``table_margin_m``) and splits the rest into SPG components with edges no longer than
+``gap_m``.
 
 ``touch_contacts``: (x, y, z, pressure) of the taxels above ``min_pressure_pa`` of every touch
 pad input — 3-D non-visual data for the same k-d tree and SPG as the visual points.
@@ -196,38 +198,24 @@ def _representation(inputs: Mapping[str, Any], params: Mapping[str, Any], progra
 
 
 def _object_clouds(pts: np.ndarray, params: Mapping[str, Any]) -> list[np.ndarray]:
-    """Points above the table split into SPG components (largest first)."""
-    from mks_sim.lowlevel.spg import SpatialProximityGraph
+    """Points above the table split into objects, largest first: the SPG components of the
+    one low-level representation (the table plane fitted near ``table_z_m``)."""
+    from mks_sim.localization.representation import Representation, RepresentationConfig
 
-    table_z = float(params.get("table_z_m", 0.0))
-    margin = float(params.get("table_margin_m", 0.004))
-    above = pts[pts[:, 2] > table_z + margin]
     min_points = int(params.get("min_object_points", 30))
-    if len(above) < min_points:
+    if np.isfinite(np.asarray(pts, dtype=float)[:, :3]).all(axis=1).sum() < max(min_points, 10):
         return []
-    graph = SpatialProximityGraph(
-        above, m=int(params.get("m", 8)), threshold=float(params.get("gap_m", 0.01))
+    table_z = params.get("table_z_m")
+    rep = Representation(
+        pts,
+        RepresentationConfig(
+            table_z_m=None if table_z is None else float(table_z),
+            table_margin_m=float(params.get("table_margin_m", 0.004)),
+            gap_m=float(params.get("gap_m", 0.012)),
+            m=int(params.get("m", 12)),
+        ),
     )
-    n, labels = graph.components()
-    counts = np.bincount(labels, minlength=n)
-    return [above[labels == c] for c in np.argsort(-counts) if counts[c] >= min_points]
-
-
-def _table_plane(params: Mapping[str, Any]) -> Any:
-    from mks_sim.lowlevel.grouping import Plane
-
-    # Normal out of the object, i.e. down into the table (plane_vertexes' convention).
-    return Plane(np.array([0.0, 0.0, -1.0]), -float(params.get("table_z_m", 0.0)))
-
-
-def _segment(cloud: np.ndarray, params: Mapping[str, Any]) -> Any:
-    from mks_sim.lowlevel.grouping import segment_surfaces
-
-    kw: dict[str, Any] = {"m": int(params.get("m", 12))}
-    for key in ("curvature_threshold", "angle_deg", "min_points", "seeds"):
-        if key in params:
-            kw[key] = params[key]
-    return segment_surfaces(cloud, **kw)
+    return [rep.objects[c] for c in rep.components(min_points)]
 
 
 # --- point sources ---------------------------------------------------------------------------
