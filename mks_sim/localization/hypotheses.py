@@ -1,7 +1,11 @@
-"""Hypothesis generators of the workstation flow beyond the vertex and plane-pair votes of
-:mod:`mks_sim.localize` (``vertex_hypotheses``, ``plane_pair_hypotheses``) and the
-rotation-invariant Hough of the models' logical sensors:
+"""Hypothesis generators of the localization engine (polyhedral and sphere models):
 
+- :func:`vertex_hypotheses` — each detected vertex (three face normals) matched to each model
+  corner fixes a pose; votes counted over the other vertexes in arrays, one quick batch score
+  per distinct placement; with three or more vertexes the rotation-invariant 3-D Hough
+  (section 2.2.1) adds its maxima;
+- :func:`plane_pair_hypotheses` — pairs of detected planes matched to pairs of model faces
+  (for when no vertex is seen), face extents checked for every pairing at once;
 - :func:`support_face_hypotheses` — each support face of a polyhedral model on the sensed
   table plane, yaws from the footprint's principal axes and 8 fixed ones; all starts of a
   segment pre-scored in one batch, the best refined by ICP;
@@ -12,27 +16,37 @@ rotation-invariant Hough of the models' logical sensors:
 
 from __future__ import annotations
 
+import itertools
+import logging
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from mks_sim.errors import DataError, MksError
 from mks_sim.geometry.points import fibonacci_sphere
+from mks_sim.geometry.transforms import make_transform
+from mks_sim.lowlevel.grouping import Vertexes
 from mks_sim.lowlevel.regions import Plane
 from mks_sim.models.pose import PoseHypothesis
+from mks_sim.models.refine import batch_inlier_fractions
 
 __all__ = [
     "fit_fixed_sphere",
+    "plane_pair_hypotheses",
     "principal_angle",
     "rotation_about",
     "rotation_between",
     "score_spheres",
     "sphere_centre_hough",
     "support_face_hypotheses",
+    "vertex_hypotheses",
 ]
 
+log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 
@@ -243,3 +257,246 @@ def fit_fixed_sphere(
     if inl.sum() < 20:
         return None
     return c, float(np.sqrt(np.mean(r[inl] ** 2))), int(inl.sum())
+
+
+# ----------------------------------------------------- vertex, plane-pair, rotation-invariant
+
+
+def vertex_hypotheses(
+    model: Any,
+    detected: Vertexes,
+    scene_points: FloatArray,
+    *,
+    vote_distance: float,
+    max_angle_deg: float = 20.0,
+    keep: int = 100,
+    rotinv: bool = True,
+) -> list[PoseHypothesis]:
+    """Pose hypotheses from matching detected vertexes (with face normals) to model corners.
+
+    Each (detected vertex, model corner, assignment of three of the corner's face normals to
+    the vertex's three face normals) whose angles agree gives a rotation (normals aligned) and
+    a translation (vertex onto corner). Votes: the detected vertexes that some transformed
+    model corner lands within ``vote_distance`` of. With three or more detected vertexes the
+    rotation-invariant Hough (section 2.2.1) adds its maxima when that matcher is available.
+
+    Args:
+        rotinv: add the rotation-invariant Hough's maxima (the workstation runs that matcher
+            on its model's logical sensor instead).
+
+    Returns:
+        At most ``keep`` hypotheses, most voted first (ties: better quick inlier fraction).
+    """
+    if len(detected) == 0:
+        return []
+    cpts = model.vertexes
+    out: list[tuple[int, FloatArray, NDArray[np.int64]]] = []
+    det_tree = cKDTree(detected.points)
+    c_point, c_normals = model.corner_triples  # (K, 3), (K, 3, 3): every ordered triple
+    c_gram = np.einsum("kij,klj->kil", c_normals, c_normals)  # (K, 3, 3)
+    cos_max = np.cos(np.radians(max_angle_deg))
+    for di in range(len(detected)):
+        Nd = detected.normals[di]
+        sel = np.flatnonzero(np.abs(c_gram - Nd @ Nd.T).max(axis=(1, 2)) <= 0.35)
+        if sel.size == 0:
+            continue
+        M = c_normals[sel]  # (K', 3, 3) rows = model normals
+        # Batched Kabsch: R m_i ~ n_i.
+        U, _, Vt = np.linalg.svd(np.einsum("kji,jl->kil", M, Nd))
+        V = np.transpose(Vt, (0, 2, 1))
+        d = np.sign(np.linalg.det(V @ np.transpose(U, (0, 2, 1))))
+        V[:, :, 2] *= d[:, None]
+        R = V @ np.transpose(U, (0, 2, 1))  # (K', 3, 3)
+        cos = np.einsum("kij,kmj,mi->km", R, M, Nd).min(axis=1)  # worst normal agreement
+        good = cos >= cos_max
+        R, kept = R[good], sel[good]
+        t = detected.points[di] - np.einsum("kij,kj->ki", R, c_point[kept])  # (K'', 3)
+        moved = np.einsum("kij,vj->kvi", R, cpts) + t[:, None, :]  # (K'', V, 3)
+        _, j = det_tree.query(moved.reshape(-1, 3), distance_upper_bound=vote_distance)
+        j = j.reshape(len(R), -1)  # (K'', V) detected vertex of each model corner (n: none)
+        # votes: distinct detected vertexes hit, per hypothesis (sorted rows, no loop)
+        js = np.sort(j, axis=1)
+        n_det = len(detected)
+        votes = (js[:, 0] < n_det).astype(np.intp)
+        votes += ((js[:, 1:] != js[:, :-1]) & (js[:, 1:] < n_det)).sum(axis=1)
+        for k in range(len(R)):
+            out.append((int(votes[k]), make_transform(R[k], t[k]), j[k]))
+    if rotinv:
+        out.extend(_rotinv_hypotheses(model, detected, vote_distance))
+    if not out:
+        return []
+    # Rank by votes; break ties among the first ``keep`` by a quick inlier fraction.
+    sub = scene_points[:: max(1, len(scene_points) // 100)]
+    by_votes = [
+        (v, T, _corner_correspondences(c, len(detected)) if c.ndim == 1 else c)
+        for v, T, c in sorted(out, key=lambda o: -o[0])[:keep]
+    ]
+    mats = np.stack([o[1] for o in by_votes])
+    # one quick score per distinct placement (poses equal up to a model symmetry share it)
+    first, inverse = _distinct_placements(mats, model.symmetries(), vote_distance / 2)
+    quick = batch_inlier_fractions(model.surface, sub, mats[first], vote_distance / 2)[inverse]
+    order = sorted(range(len(by_votes)), key=lambda k: (-by_votes[k][0], -quick[k]))
+    ranked = [by_votes[k] for k in order]
+    ref = model.vertexes.mean(axis=0)
+    return [
+        PoseHypothesis(T, T[:3, :3] @ ref + T[:3, 3], votes=v, correspondences=c)
+        for v, T, c in ranked
+    ]
+
+
+def _distinct_placements(
+    matrices: FloatArray, symmetries: FloatArray | None, tolerance: float
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Poses that are the same placement up to a model symmetry, grouped in arrays: each
+    rotation is replaced by its symmetric image closest to a fixed generic rotation, then
+    rotations (to 0.01) and translations (to ``tolerance``) are rounded and compared.
+
+    Returns:
+        (first index of each group, (K,) group of each pose); poses near a rounding boundary
+        may stay apart (harmless: they are then scored twice).
+    """
+    R = matrices[:, :3, :3]
+    if symmetries is not None and len(symmetries):
+        S = np.concatenate([np.eye(3)[None], np.asarray(symmetries, dtype=np.float64)])
+        RS = np.einsum("kij,sjl->ksil", R, S)  # (K, S, 3, 3)
+        best = np.einsum("ksij,ij->ks", RS, _GENERIC_ROTATION).argmax(axis=1)
+        R = RS[np.arange(len(R)), best]
+    key = np.concatenate(
+        [np.round(R.reshape(len(R), 9) / 0.01), np.round(matrices[:, :3, 3] / tolerance)], axis=1
+    )
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    return first, inverse.reshape(-1)
+
+
+#: A fixed rotation in general position (canonical symmetric images in _distinct_placements).
+_GENERIC_ROTATION = np.array(
+    [[0.36, 0.48, -0.80], [-0.80, 0.60, 0.00], [0.48, 0.64, 0.60]], dtype=np.float64
+)
+
+
+def _corner_correspondences(j: NDArray[np.intp], n_detected: int) -> NDArray[np.int64]:
+    """(C, 2) (detected vertex, model corner) pairs from the detected vertex each model corner
+    landed on (``n_detected``: none), the first corner per detected vertex."""
+    hit = np.flatnonzero(j < n_detected)
+    corr = np.column_stack([j[hit], hit]).astype(np.int64)
+    return corr[np.unique(corr[:, 0], return_index=True)[1]]
+
+
+def _frame(a: FloatArray, b: FloatArray) -> FloatArray:
+    """(3, 3) orthonormal frame (columns) from two non-parallel directions."""
+    e1 = a / np.linalg.norm(a)
+    e3 = np.cross(a, b)
+    norm = np.linalg.norm(e3)
+    if norm < 1e-9:  # callers filter near-parallel pairs; never divide by zero into NaN frames
+        raise DataError(f"_frame: directions {a} and {b} are parallel")
+    e3 /= norm
+    return np.column_stack([e1, np.cross(e3, e1), e3])
+
+
+def plane_pair_hypotheses(
+    model: Any,
+    planes: Sequence[tuple[Plane, FloatArray | None]],
+    scene_points: FloatArray,
+    *,
+    inlier_distance: float,
+    max_angle_deg: float = 8.0,
+    keep: int = 40,
+) -> list[PoseHypothesis]:
+    """Pose hypotheses from pairs of detected planes matched to pairs of model faces.
+
+    For when fewer than one vertex is visible (e.g. one wall and the top of a part on a
+    table). Two non-parallel planes fix the rotation and two components of the translation;
+    the third (along their intersection line) centres the first plane's observed extent on
+    the model face's extent. Face extents must not be exceeded by the observed region.
+
+    Args:
+        model: the model (its large faces).
+        planes: detected planes with their points ((n, 3)) or None for a plane not sampled by
+            the data (the table: it is never the first of a pair).
+        scene_points: (N, 3) segment points (for a quick inlier ranking).
+        inlier_distance: ranking inlier distance.
+        max_angle_deg: tolerance on the angle between the two normals.
+        keep: hypotheses returned (best quick inlier fraction first).
+    """
+    sub = scene_points[:: max(1, len(scene_points) // 80)]
+    extremes, offsets = model.face_extremes
+    pa, pb, pcos, pframes = model.face_pairs
+    out: list[tuple[float, FloatArray]] = []
+    cos_tol = np.sin(np.radians(max_angle_deg))
+    slack = 4 * inlier_distance
+    for (P, p_pts), (Q, q_pts) in itertools.permutations(planes, 2):
+        if p_pts is None:
+            continue
+        cpq = float(P.normal @ Q.normal)
+        if abs(cpq) > 0.9:
+            continue
+        frame_s = _frame(P.normal, Q.normal)
+        e, f_dir = frame_s[:, 2], frame_s[:, 1]
+        pe, pf = p_pts @ e, p_pts @ f_dir
+        sel = np.flatnonzero(np.abs(pcos - cpq) <= cos_tol)
+        if sel.size == 0:
+            continue
+        Rs = np.einsum("ij,kjl->kil", frame_s, np.transpose(pframes[sel], (0, 2, 1)))
+        # face extents along the scene directions, every candidate pairing at once
+        A_ex, B_ex = extremes[pa[sel]], extremes[pb[sel]]  # (K, E, 3)
+        ae = np.einsum("kpi,kji,j->kp", A_ex, Rs, e)  # A.points @ (R^T e)
+        af = np.einsum("kpi,kji,j->kp", A_ex, Rs, f_dir)
+        ok = (np.ptp(pe) <= np.ptp(ae, axis=1) + slack) & (np.ptp(pf) <= np.ptp(af, axis=1) + slack)
+        if q_pts is not None:
+            g = np.cross(Q.normal, e)  # Q's in-plane direction across the shared edge
+            qe, qg = q_pts @ e, q_pts @ g
+            be = np.einsum("kpi,kji,j->kp", B_ex, Rs, e)
+            bg = np.einsum("kpi,kji,j->kp", B_ex, Rs, g)
+            ok &= (np.ptp(qe) <= np.ptp(be, axis=1) + slack) & (
+                np.ptp(qg) <= np.ptp(bg, axis=1) + slack
+            )
+        if not ok.any():
+            continue
+        lhs = np.stack([P.normal, Q.normal, e])
+        try:
+            lhs_inv = np.linalg.inv(lhs)
+        except np.linalg.LinAlgError:
+            continue
+        mid_s = (pe.max() + pe.min()) / 2
+        mid_m = (ae.max(axis=1) + ae.min(axis=1)) / 2
+        rhs = np.stack(
+            [P.offset - offsets[pa[sel]], Q.offset - offsets[pb[sel]], mid_s - mid_m], axis=1
+        )
+        t = rhs @ lhs_inv.T  # (K, 3)
+        ok &= np.all(np.isfinite(t), axis=1) & np.all(np.isfinite(Rs), axis=(1, 2))
+        for k in np.flatnonzero(ok):
+            out.append((0.0, make_transform(Rs[k], t[k])))
+    if out:
+        quick = batch_inlier_fractions(
+            model.surface, sub, np.stack([o[1] for o in out]), inlier_distance
+        )
+        out = [(float(q), o[1]) for q, o in zip(quick, out)]
+    out.sort(key=lambda o: -o[0])
+    ref = model.vertexes.mean(axis=0)
+    return [PoseHypothesis(T, T[:3, :3] @ ref + T[:3, 3], votes=0) for _, T in out[:keep]]
+
+
+def _rotinv_hypotheses(
+    model: Any, detected: Vertexes, vote_distance: float, max_points: int = 6
+) -> list[tuple[int, FloatArray, NDArray[np.int64]]]:
+    """Maxima of the rotation-invariant 3-D Hough (section 2.2.1) over the detected vertexes
+    (the ``max_points`` best supported: its cost grows with the cube of their number)."""
+    if len(detected) < 3:
+        return []
+    try:
+        from mks_sim.models.rotinv import RotationInvariantHough
+    except ImportError:  # pragma: no cover - part of the package
+        return []
+    order = np.argsort(detected.support, kind="stable")[:max_points]
+    try:
+        hough = RotationInvariantHough(model.vertexes, tolerance=vote_distance / 2)
+        found = hough.detect(detected.points[order])
+    except MksError as exc:
+        log.debug("rotation-invariant Hough gave nothing: %s", exc)
+        return []
+    out = []
+    for h in found:
+        corr = np.asarray(h.correspondences, dtype=np.int64).reshape(-1, 2).copy()
+        corr[:, 0] = order[corr[:, 0]]  # back to indices into ``detected``
+        out.append((int(h.votes), np.asarray(h.matrix, dtype=np.float64), corr))
+    return out

@@ -159,11 +159,8 @@ def polyhedral_candidates(
     Returns:
         (hypotheses, segment index of each).
     """
-    from mks_sim.localize import (
-        _diverse_planes,
-        plane_pair_hypotheses,
-        vertex_hypotheses,
-    )
+    from mks_sim.localization.hypotheses import plane_pair_hypotheses, vertex_hypotheses
+    from mks_sim.localize import _diverse_planes
     from mks_sim.models.refine import verify_hypotheses
 
     timing = {} if timing is None else timing
