@@ -183,6 +183,7 @@ def test_localize_with_every_point_source_failed_is_a_clean_not_found(capsys) ->
     doc = json.loads(out)
     assert doc["found"] is False and doc["matrix"] is None and doc["success"] is False
     assert doc["failed_devices"] == ["range_finder", "stereo_left", "depth_camera"]
+    assert doc["faults"] == ["depth_camera", "range_finder", "stereo_left"]  # one format
     for name in ("Range_Points", "range_finder", "stereo_left", "depth_camera"):
         assert name in doc["failure"]
 
@@ -235,6 +236,43 @@ def test_grasp_exit_1_when_an_episode_fails(capsys) -> None:
     assert rc == 1 and "Traceback" not in err
     (episode,) = json.loads(out)["episodes"]
     assert episode["success"] is False and episode["failure"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("obj", "seed"), [("cube", 1008), ("part", 1005)])  # tuning seeds
+def test_grasp_with_the_thumb_pad_failed_closes_on_the_finger_torque(obj, seed, capsys) -> None:
+    """Finger 1 (the thumb) alone opposes fingers 2 and 3: with its pad failed, its joint
+    torque stands in (Touch_Contacts' alternate Torque_For_Pad_1), the grasp closes on two
+    sides and holds (ground-truth verdict; before the stand-in these episodes failed with
+    'no two-sided contact'); the JSON names the failed pad and the alternate."""
+    import json
+
+    argv = ["grasp", "--object", obj, "--episodes", "1", "--seed", str(seed), "--json",
+            "--fail", "touch_finger_1"]  # fmt: skip
+    rc, out, err = _run(argv, capsys)
+    (episode,) = json.loads(out)["episodes"]
+    assert rc == 0 and episode["success"] is True, episode
+    assert episode["faults"] == ["touch_finger_1"]
+    assert episode["warnings"] == ["Touch_Contacts ran on alternate Torque_For_Pad_1"]
+
+
+@pytest.mark.slow
+def test_grasp_failure_names_the_failed_pad(capsys) -> None:
+    """With the thumb's pad and its torque stand-in both failed, the grasp cannot close on
+    two sides, and the failure says which device and which Touch_Contacts way ran."""
+    import json
+
+    argv = ["grasp", "--object", "cube", "--episodes", "1", "--seed", "1000", "--json",
+            "--fail", "touch_finger_1", "finger_torque_1"]  # fmt: skip
+    rc, out, err = _run(argv, capsys)
+    (episode,) = json.loads(out)["episodes"]
+    assert rc == 1 and episode["success"] is False
+    assert episode["failure"].startswith("no two-sided contact")
+    assert episode["failure"].endswith(
+        ": touch_finger_1 failed (Touch_Contacts ran on Without_Pad_1)"
+    )
+    assert episode["faults"] == ["finger_torque_1", "touch_finger_1"]
+    assert episode["warnings"] == ["Touch_Contacts ran on alternate Without_Pad_1"]
 
 
 @pytest.mark.slow
