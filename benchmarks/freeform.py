@@ -25,7 +25,13 @@ runs happen in a subprocess with that folder first on ``PYTHONPATH``; the venv i
 Usage::
 
     .venv/bin/python benchmarks/freeform.py --trials 4 --cv-contrib /tmp/cvcontrib
+    .venv/bin/python benchmarks/freeform.py --trials 4 --cv-contrib venv  # the bench extra's
     .venv/bin/python benchmarks/freeform.py --quick     # 1 trial per cell, prints only
+
+``--cv-contrib venv`` runs OpenCV in this venv when its ``cv2`` is the contrib build (the
+``bench`` extra installs ``opencv-contrib-python-headless``); without ``--cv-contrib``, or when
+the folder or its ``ppf_match_3d`` is missing, the OpenCV column is skipped with a line saying
+why (on stderr and in the results file).
 
 The script writes ``benchmarks/results/freeform.md`` itself (or ``--out``; ``--quick`` writes
 no file unless ``--out`` is given), starting with the provenance lines of
@@ -208,6 +214,23 @@ def run_opencv(cv_dir: str, model_pts, model_nrm, scenes):
         return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def opencv_contrib_problem(cv_dir: str) -> str:
+    """Why the contrib OpenCV in ``cv_dir`` cannot run ``ppf_match_3d`` ("" when it can)."""
+    probe = "import sys; sys.path.insert(0, sys.argv[1]); import cv2; cv2.ppf_match_3d_PPF3DDetector"
+    out = subprocess.run(
+        [sys.executable, "-c", probe, cv_dir],
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=cv_dir),
+        timeout=120,
+    )
+    if out.returncode == 0:
+        return ""
+    last = (out.stderr.strip().splitlines() or ["no output"])[-1]
+    where = f"--cv-contrib folder {cv_dir}" if cv_dir else "this venv's cv2"
+    return f"opencv skipped: no ppf_match_3d in {where} ({last})"
+
+
 def control_point_localize(scan_full, surface, inlier):
     from mks_sim.models.rotinv import RotationInvariantHough
     from mks_sim.sensing.programs.points import control_point_detector
@@ -245,7 +268,11 @@ def evaluate(T_est, T, syms):
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--trials", type=int, default=4)
-    ap.add_argument("--cv-contrib", default="", help="folder with opencv-contrib (pip --target)")
+    ap.add_argument(
+        "--cv-contrib",
+        default="",
+        help="folder with opencv-contrib (pip --target), or 'venv' for this venv's cv2",
+    )
     ap.add_argument("--out", default=None, help="default results/freeform.md; --quick: none")
     ap.add_argument("--quick", action="store_true", help="1 trial per cell, no file by default")
     args = ap.parse_args()
@@ -261,7 +288,21 @@ def main() -> int:
             c = dict(BASE, **{k: v})
             if c != BASE:
                 conds.append((f"{k}={v}", c))
-    methods = ["freeform", "open3d", "opencv"] if args.cv_contrib else ["freeform", "open3d"]
+    cv_skip = ""
+    if not args.cv_contrib:
+        cv_skip = "opencv not run (no --cv-contrib given; `--cv-contrib venv` uses this venv's cv2"
+        cv_skip += " if it is the contrib build, a folder uses a contrib wheel installed there)"
+    elif args.cv_contrib == "venv":
+        args.cv_contrib = ""
+        cv_skip = opencv_contrib_problem("")
+    elif not Path(args.cv_contrib).is_dir():
+        cv_skip = f"opencv skipped: --cv-contrib folder {args.cv_contrib} does not exist"
+    else:
+        cv_skip = opencv_contrib_problem(args.cv_contrib)
+    if cv_skip:
+        print(cv_skip, file=sys.stderr, flush=True)
+    methods = ["freeform", "open3d"] if cv_skip else ["freeform", "open3d", "opencv"]
+    run_cv = "opencv" in methods
     table_rows = []
     totals: dict[str, dict[str, tuple[int, int, str]]] = {}
     train_times: dict[str, dict[str, float]] = {}
@@ -297,7 +338,7 @@ def main() -> int:
             dt = time.perf_counter() - t
             pos, rot, ok = evaluate(est, T, syms)
             results["open3d"].append(dict(cond=cname, pos=pos, rot=rot, ok=ok, time=dt, vis=vis))
-        if "opencv" in methods:
+        if run_cv:
             # PPF training is quadratic in the model points: a 4 mm model sampling (~1200
             # points for the part) keeps it to tens of seconds on this machine.
             cp, cn = sample_surface(mesh, spacing=0.004, rng=np.random.default_rng(0))
@@ -368,6 +409,7 @@ def main() -> int:
             if "opencv" in methods
             else ""
         ),
+        *([f"- {cv_skip}"] if cv_skip else []),
         "",
         "## Totals",
         "",
