@@ -94,6 +94,16 @@ def test_range_finder_sees_sleeping_bodies() -> None:
     asleep, awake = (np.concatenate([s.ranges for s in scan]) for scan in scans)
     assert np.isfinite(awake).sum() > 100
     np.testing.assert_array_equal(asleep, awake)
+    # The overhead camera renders the sleeping bodies where they are (same noise seed).
+    frames = []
+    for data in (d, fresh):
+        cams = make_devices(m, data, np.random.default_rng(0), names=["overhead_camera"])
+        try:
+            frames.append(np.asarray(cams["overhead_camera"].read().rgb))
+        finally:
+            cams.close()
+    np.testing.assert_array_equal(frames[0], frames[1])
+    assert frames[0].std() > 1.0  # an image of the scene, not a blank frame
 
 
 @pytest.mark.slow
