@@ -72,6 +72,12 @@ class RepresentationConfig:
     viewpoint: tuple[float, float, float] | None = None
 
 
+def _tree(points: FloatArray) -> cKDTree:
+    """k-d tree of a point set: sliding-midpoint splits (``balanced_tree=False``) build in
+    about half the time of median splits on scans and answer the same queries as fast."""
+    return cKDTree(points, balanced_tree=False)
+
+
 def voxel_average(points: FloatArray, voxel: float) -> FloatArray:
     """(M, 3) centroids of the points in each occupied cube of edge ``voxel`` (the one voxel
     filter of the package)."""
@@ -99,7 +105,7 @@ def spacing_and_noise(
     n = len(points)
     probe = points if n <= probes else points[rng.choice(n, probes, replace=False)]
     k = min(12, n)
-    tree = cKDTree(points) if tree is None else tree
+    tree = _tree(points) if tree is None else tree
     d, idx = tree.query(probe, k=k)
     spacing = float(np.median(d[:, 1])) if k > 1 else 0.0
     nb = points[idx]  # (P, k, 3)
@@ -149,7 +155,7 @@ class Representation:
 
     @cached_property
     def _raw_tree(self) -> cKDTree:
-        return cKDTree(self.raw)
+        return _tree(self.raw)
 
     @cached_property
     def _raw_stats(self) -> tuple[float, float]:
@@ -186,7 +192,7 @@ class Representation:
     @cached_property
     def tree(self) -> cKDTree:
         """k-d tree of :attr:`points`."""
-        return self._raw_tree if self.voxel == 0 else cKDTree(self.points)
+        return self._raw_tree if self.voxel == 0 else _tree(self.points)
 
     @cached_property
     def _stats(self) -> tuple[float, float]:

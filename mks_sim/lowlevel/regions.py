@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import optimize, sparse
+from scipy import sparse
 from scipy.sparse import csgraph
 
 from mks_sim.errors import DataError
@@ -245,16 +245,40 @@ def fit_sphere(points: ArrayLike) -> SphereFit:
     def residual(x: FloatArray) -> FloatArray:
         return np.linalg.norm(pts - x[:3], axis=1) - x[3]
 
-    def jacobian(x: FloatArray) -> FloatArray:
-        d = pts - x[:3]
-        length = np.maximum(np.linalg.norm(d, axis=1), 1e-300)
-        return np.column_stack([-d / length[:, None], -np.ones(len(pts))])
-
-    res = optimize.least_squares(
-        residual, np.append(center0, np.sqrt(r2)), jac=jacobian, method="lm"
-    )
-    center, radius = res.x[:3], abs(float(res.x[3]))
-    rmse = float(np.sqrt(np.mean(residual(res.x) ** 2)))
+    # Levenberg-Marquardt on the radial residuals (4 unknowns: a few 4x4 solves, no scipy
+    # driver overhead); starts at the algebraic fit, which is already close.
+    x = np.append(center0, np.sqrt(r2))
+    d = pts - x[:3]
+    length = np.linalg.norm(d, axis=1)
+    res = length - x[3]
+    cost = float(res @ res)
+    damping = 1e-3
+    for _ in range(100):
+        J = np.column_stack([-d / np.maximum(length, 1e-300)[:, None], -np.ones(len(pts))])
+        JtJ, Jtr = J.T @ J, J.T @ res
+        improved = False
+        while damping < 1e12:
+            step = np.linalg.solve(JtJ + damping * np.diag(np.diag(JtJ) + 1e-300), -Jtr)
+            x_new = x + step
+            d_new = pts - x_new[:3]
+            length_new = np.linalg.norm(d_new, axis=1)
+            res_new = length_new - x_new[3]
+            cost_new = float(res_new @ res_new)
+            if cost_new <= cost:
+                improved = True
+                break
+            damping *= 10.0
+        if not improved:
+            break
+        converged = cost - cost_new <= 1e-15 * max(cost, 1e-300) or np.linalg.norm(
+            step
+        ) <= 1e-12 * (np.linalg.norm(x) + 1e-12)
+        x, d, length, res, cost = x_new, d_new, length_new, res_new, cost_new
+        damping = max(damping / 10.0, 1e-12)
+        if converged:
+            break
+    center, radius = x[:3], abs(float(x[3]))
+    rmse = float(np.sqrt(np.mean(residual(x) ** 2)))
     return SphereFit(center=center, radius=radius, rmse=rmse)
 
 
