@@ -624,3 +624,31 @@ def test_touch_contacts_survive_one_failed_pad(failed: int | None) -> None:
     assert served == ("primary" if failed is None else f"Without_Pad_{failed}")
     if failed in (2, 3):  # both sides of the grasp still touched
         assert (data[:, 0] < 0).any() and (data[:, 0] > 0).any()
+
+
+@pytest.mark.parametrize("failed", [1, 2, 3])
+def test_finger_torque_stands_in_for_a_failed_pad(failed: int) -> None:
+    """Torque_For_Pad_<i> serves before Without_Pad_<i>: the failed pad's finger comes back as
+    one (x, y, z, pressure) row at its pad centre, so both sides of the grasp are sensed; a
+    finger that is not pressing (0 Pa) adds no row."""
+    from types import SimpleNamespace
+
+    graph = SensorGraph.from_dir()
+    x = {1: -0.02, 2: 0.02, 3: 0.03}
+    devices: dict[str, Any] = {
+        f"touch_finger_{i}": _pad(f"touch_finger_{i}", x[i], fail=i == failed) for i in x
+    }
+    for i in x:
+        pressing = SimpleNamespace(pressure=np.array([9.0e4]),
+                                   positions_world=np.array([[x[i], 0.005, 1.0]]))  # fmt: skip
+        devices[f"finger_torque_{i}"] = FakeDevice(f"finger_torque_{i}", pressing)
+    snap = graph.snapshot(devices)
+    data = snap.get("Touch_Contacts").data
+    assert snap.provenance["Touch_Contacts"] == f"Torque_For_Pad_{failed}"
+    assert len(data) == 2 * 2 + 1
+    (row,) = data[data[:, 3] == 9.0e4]
+    assert np.allclose(row[:3], [x[failed], 0.005, 1.0])
+    assert (data[:, 0] < 0).any() and (data[:, 0] > 0).any()  # both sides
+    idle = SimpleNamespace(pressure=np.array([0.0]), positions_world=np.array([[0.0, 0, 1]]))
+    devices[f"finger_torque_{failed}"] = FakeDevice(f"finger_torque_{failed}", idle)
+    assert len(graph.snapshot(devices).get("Touch_Contacts").data) == 4
