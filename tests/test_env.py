@@ -293,7 +293,7 @@ def generated_models(tmp_path_factory: pytest.TempPathFactory):
 def test_unknown_object_lists_the_database(monkeypatch: pytest.MonkeyPatch) -> None:
     from mks_sim.errors import NotFound
 
-    monkeypatch.delenv("MKS_SIM_MODELS", raising=False)
+    monkeypatch.setenv("MKS_SIM_MODELS", "")  # restored (unset) after the test
     with pytest.raises(NotFound, match=r"unknown object 'wedge'.*cube.*part.*sphere"):
         GraspEnvV1(object="wedge")
     with pytest.raises(NotFound, match="expected a model folder"):
@@ -308,7 +308,7 @@ def test_any_database_object_with_models_folder(
     alone on the table, dropped); the sensor-based estimate at reset is near the truth."""
     from mks_sim.sim import truth
 
-    monkeypatch.delenv("MKS_SIM_MODELS", raising=False)  # restored after the test
+    monkeypatch.setenv("MKS_SIM_MODELS", "")  # the env sets it; restored (unset) after the test
     env = gym.make("mks_sim/Grasp-v1", object="wedge", models=(str(generated_models),))
     try:
         u = env.unwrapped
@@ -326,3 +326,13 @@ def test_any_database_object_with_models_folder(
         assert pickle.loads(pickle.dumps(u)).object == "wedge"  # rebuilt with its models
     finally:
         env.close()
+
+
+def test_models_folder_does_not_leak_from_the_wedge_test() -> None:
+    import os
+
+    # Runs after test_any_database_object_with_models_folder (file order): its models folder
+    # went into MKS_SIM_MODELS through the env and must be gone again.
+    assert not os.environ.get("MKS_SIM_MODELS", "").strip() or "env_models" not in os.environ[
+        "MKS_SIM_MODELS"
+    ]
