@@ -6,32 +6,66 @@
    segmentation of the snapshot;
 2. :func:`polyhedral_candidates` — vertex hypotheses (and plane-pair hypotheses when too few
    vertexes are seen) per segment, pre-scored in one batch, ICP on the best few, scored by
-   the explained fraction of the segment times the coverage of the expected visible surface.
+   the explained fraction of the segment times the coverage of the expected visible surface;
+3. :func:`localize_cloud` — the simulator-free pipeline on one recorded cloud (its own table,
+   objects, grouping and matching; :mod:`mks_sim.localize` re-exports it).
 """
 
 from __future__ import annotations
 
+import itertools
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from pathlib import Path
+from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
 
-from mks_sim.errors import DataError
-from mks_sim.localization.representation import Representation
+from mks_sim.errors import DataError, MksError
+from mks_sim.io.units import check_scale
+from mks_sim.localization.hypotheses import plane_pair_hypotheses, vertex_hypotheses
+from mks_sim.localization.model import LocalizableModel, PolyhedralModel, load_model
+from mks_sim.localization.representation import (
+    Representation,
+    spacing_and_noise,
+    voxel_average,
+)
+from mks_sim.localization.verify import find_table
+from mks_sim.lowlevel.grouping import (
+    PlanarRegion,
+    Plane,
+    Segmentation,
+    Vertexes,
+    build_graph,
+    plane_vertexes,
+    segment_surfaces,
+)
 from mks_sim.models.pose import PoseHypothesis
+from mks_sim.models.refine import ModelSurface, verify_hypotheses
 
-__all__ = ["Segment", "object_segments", "polyhedral_candidates"]
+__all__ = [
+    "VISIBLE_FRACTION",
+    "Localization",
+    "Segment",
+    "SegmentReport",
+    "localize_cloud",
+    "object_segments",
+    "polyhedral_candidates",
+]
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 
-#: Part of a model's surface one view is assumed to show at least (see
-#: :data:`mks_sim.localize.VISIBLE_FRACTION`).
+#: Part of a model's surface one view is assumed to show at least (a cube seen obliquely
+#: shows ~1/2, the industrial part from above ~1/3); a hypothesis under which fewer of the
+#: model's surface samples than this share have a scene point nearby has its score scaled down.
 VISIBLE_FRACTION = 0.2
+
 #: Scene points of a segment the candidates' full ICP and scores use (a random subset; the
 #: final polish of the best candidate uses up to 1000 near it).
 ICP_POINTS = 500
@@ -82,7 +116,6 @@ def object_segments(
     from scipy import sparse
     from scipy.sparse import csgraph
 
-    from mks_sim.localize import _merge_components
     from mks_sim.lowlevel.vertexes import plane_vertexes
 
     objects = rep.objects
@@ -159,8 +192,6 @@ def polyhedral_candidates(
     Returns:
         (hypotheses, segment index of each).
     """
-    from mks_sim.localization.hypotheses import plane_pair_hypotheses, vertex_hypotheses
-    from mks_sim.localize import _diverse_planes
     from mks_sim.models.refine import verify_hypotheses
 
     timing = {} if timing is None else timing
@@ -249,3 +280,478 @@ def polyhedral_candidates(
     timing["hypotheses"] = timing.get("hypotheses", 0.0) + t_hyp
     timing["verification"] = timing.get("verification", 0.0) + t_ver
     return [r[0] for r in results], [r[1] for r in results]
+
+
+# --------------------------------------------------------------------------- one cloud
+
+
+
+# --------------------------------------------------------------------------- the pipeline
+
+
+@dataclass(frozen=True, eq=False)
+class SegmentReport:
+    """What grouping found in one object segment.
+
+    Attributes:
+        indices: (n,) indices of the segment's points in the NaN-free scene (in the
+            voxel-averaged scene when :attr:`Localization.voxel` > 0).
+        planes: planar regions (indices into the segment).
+        vertexes: detected vertexes (segment frame = scene frame).
+        on_table: the table plane was used as a face of this segment.
+    """
+
+    indices: NDArray[np.intp]
+    planes: tuple[PlanarRegion, ...]
+    vertexes: Vertexes
+    on_table: bool
+
+
+@dataclass(frozen=True, eq=False)
+class Localization:
+    """Result of :func:`localize_cloud`.
+
+    Attributes:
+        found: the best hypothesis passed ``min_score``.
+        hypotheses: verified hypotheses, best first (``matrix`` model -> scene, ``votes``,
+            ``score`` in [0, 1] = inlier fraction x residual factor (see
+            :func:`~mks_sim.models.refine.score_pose`) x coverage (the fraction of the
+            model's surface samples with a scene point nearby over :data:`VISIBLE_FRACTION`,
+            capped at 1: independent of the scan density),
+            ``rmse`` in scene units).
+        equivalents: per hypothesis, (E, 4, 4) poses equivalent to it under the model's
+            symmetries that the matcher also proposed.
+        inlier_fractions: per hypothesis, the fraction of its segment's points explained.
+        segment_of: per hypothesis, the index into ``segments``.
+        segments: grouping diagnostics per object segment.
+        table: the removed table plane (normal towards the objects) or None.
+        spacing: median nearest-neighbour distance of the (averaged) scene.
+        noise: estimated noise sigma of the (averaged) scene (RMS distance from local planes).
+        voxel: voxel edge the scene was averaged on (0: not averaged).
+        dropped_nan: NaN/inf scene rows dropped on input.
+        warnings: what the caller should hear about (e.g. model and scene sizes that differ by
+            orders of magnitude: wrong units or a missing ``scale``).
+        timing: seconds per stage (``graph``, ``table``, ``grouping``, ``matching``,
+            ``refinement``; the engine's stage names ``representation`` = graph + table +
+            grouping, ``hypotheses`` = matching, ``verification`` = refinement; ``total``).
+    """
+
+    found: bool
+    hypotheses: tuple[PoseHypothesis, ...]
+    equivalents: tuple[FloatArray, ...]
+    inlier_fractions: tuple[float, ...]
+    segment_of: tuple[int, ...]
+    segments: tuple[SegmentReport, ...]
+    table: Plane | None
+    spacing: float
+    noise: float
+    voxel: float
+    dropped_nan: int
+    timing: dict[str, float]
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def best(self) -> PoseHypothesis | None:
+        """The best hypothesis, or None."""
+        return self.hypotheses[0] if self.hypotheses else None
+
+
+def _spacing_and_noise(points: FloatArray, rng: np.random.Generator) -> tuple[float, float]:
+    """Median nearest-neighbour distance and noise sigma (``representation.spacing_and_noise``)."""
+    return spacing_and_noise(points, rng)
+
+
+def _find_table(
+    points: FloatArray,
+    spacing: float,
+    noise: float,
+    viewpoint: FloatArray | None,
+    rng: np.random.Generator,
+) -> tuple[Plane | None, NDArray[np.bool_]]:
+    """The dominant plane if it looks like a support, and the mask of its band (the one table
+    finder, :func:`mks_sim.localization.verify.find_table`)."""
+    plane, _, band = find_table(points, rng, spacing=spacing, noise=noise, viewpoint=viewpoint)
+    return plane, band
+
+
+def _as_localizable(model: Any, scale: float) -> LocalizableModel:
+    if scale != 1.0:
+        if not callable(getattr(model, "scaled", None)):
+            raise DataError(
+                f"model {getattr(model, 'name', model)!r}: scale needs a model with a "
+                "scaled(factor) method (PolyhedralModel, FreeformModel)"
+            )
+        model = model.scaled(scale)
+    if isinstance(model, PolyhedralModel):
+        return model
+    if isinstance(model, LocalizableModel):
+        return model
+    raise DataError(
+        f"localize_cloud: expected a LocalizableModel, PolyhedralModel, mesh, file or model "
+        f"name, got {type(model).__name__}"
+    )
+
+
+def localize_cloud(
+    model: Any,
+    scene_points: ArrayLike,
+    *,
+    scale: float = 1.0,
+    viewpoint: ArrayLike | None = None,
+    table: Literal["auto", "none"] | Plane = "auto",
+    voxel: float | Literal["auto"] | None = "auto",
+    max_points: int = 30000,
+    m: int = 12,
+    min_segment_points: int = 60,
+    min_score: float = 0.5,
+    max_hypotheses: int = 10,
+    max_icp: int = 8,
+    rng: np.random.Generator | None = None,
+) -> Localization:
+    """Localize a model in a point cloud (paper section 4: SPG -> grouping -> Hough -> pose).
+
+    Args:
+        model: a :class:`LocalizableModel` (e.g. :class:`PolyhedralModel`), a ``Mesh``, a
+            file path (mesh or point cloud) or a model-database name (see :func:`load_model`).
+        scene_points: (N, 3) scene points in the model's unit times ``scale``; NaN/inf rows
+            are dropped and counted.
+        scale: model coordinates are multiplied by this to get scene units (e.g. 0.001 for a
+            model in mm and a scene in m); the reported matrices map the scaled model.
+        viewpoint: (3,) sensor position in the scene frame (orients normals; else normals
+            point away from each segment's centroid).
+        table: ``"auto"`` detects and removes a supporting plane (and uses it as the face the
+            object rests on), ``"none"`` keeps every point, or a known :class:`Plane`
+            (normal towards the objects).
+        voxel: ``"auto"`` averages the cloud on a voxel grid of edge max(spacing, 3 sigma)
+            when the estimated noise sigma exceeds 0.2 x the spacing, or of edge about
+            spacing x sqrt(N / max_points) when there are more than ``max_points`` points; a
+            number forces that edge; None never averages.
+        max_points: point budget of ``voxel="auto"``.
+        m: SPG neighbours.
+        min_segment_points: smaller SPG components are ignored.
+        min_score: ``found`` needs the best score at least this.
+        max_hypotheses: report at most this many distinct hypotheses.
+        max_icp: ICP-refine at most this many distinct candidates per segment.
+        rng: generator (RANSAC, subsampling); default seeded 0.
+
+    Returns:
+        :class:`Localization`.
+
+    Raises:
+        DataError: malformed points (wrong shape, fewer than 10 finite points) or model.
+        NotFound: a model name or file that does not exist.
+    """
+    t0 = time.perf_counter()
+    timing: dict[str, float] = {}
+    rng = np.random.default_rng(0) if rng is None else rng
+    if isinstance(model, str | Path) or type(model).__name__ == "Mesh":
+        model = load_model(model)
+    loc_model = _as_localizable(model, scale)
+    try:
+        raw = np.asarray(scene_points, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"localize_cloud: scene points are not numeric: {exc}") from exc
+    if raw.ndim != 2 or raw.shape[1] != 3:
+        raise DataError(f"localize_cloud: expected (N, 3) scene points, got shape {raw.shape}")
+    finite = np.all(np.isfinite(raw), axis=1)
+    dropped = int((~finite).sum())
+    if dropped:
+        log.warning("localize_cloud: dropped %d NaN/inf scene points of %d", dropped, len(raw))
+    pts = raw[finite]
+    if len(pts) < 10:
+        raise DataError(f"localize_cloud: expected at least 10 finite scene points, got {len(pts)}")
+    vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(3)
+    # Extent is linear in scale: the unscaled model's points times `scale` are loc_model's.
+    size_warning = check_scale(loc_model.surface_points() / scale, pts, scale)
+
+    t = time.perf_counter()
+    spacing, noise = _spacing_and_noise(pts, rng)
+    voxel_size = 0.0
+    raw = pts
+    if voxel == "auto":
+        # Noise comparable to the spacing defeats PCA normals over one SPG ring: average the
+        # cloud on a voxel grid (noise falls with the averaging); what noise is left is
+        # handled by two-ring normals in the grouping.
+        if noise > 0.2 * spacing:
+            voxel_size = max(spacing, 3.0 * noise)
+        if len(raw) > max_points:
+            # Dense clouds: about max_points points are plenty (and time grows with them).
+            voxel_size = max(voxel_size, 1.1 * spacing * np.sqrt(len(raw) / max_points))
+        if voxel_size > 0:
+            pts = voxel_average(raw, voxel_size)
+            spacing, noise = _spacing_and_noise(pts, rng)
+    elif voxel is not None:
+        voxel_size = float(voxel)
+        pts = voxel_average(raw, voxel_size)
+        spacing, noise = _spacing_and_noise(pts, rng)
+    if len(pts) < 10:
+        raise DataError(f"localize_cloud: only {len(pts)} points left after voxel averaging")
+    timing["graph"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    table_plane: Plane | None
+    on_table_band = np.zeros(len(pts), dtype=bool)
+    if isinstance(table, Plane):
+        table_plane = table
+        on_table_band = np.abs(table.distance(pts)) <= 1.5 * max(spacing, 3.0 * noise)
+    elif table == "auto":
+        table_plane, on_table_band = _find_table(pts, spacing, noise, vp, rng)
+    elif table == "none":
+        table_plane = None
+    else:
+        raise DataError(f"localize_cloud: table must be 'auto', 'none' or a Plane, got {table!r}")
+    keep = np.flatnonzero(~on_table_band)
+    if table_plane is not None:
+        keep = keep[table_plane.distance(pts[keep]) > 0]
+    obj = pts[keep]
+    timing["table"] = time.perf_counter() - t
+
+    surface = (
+        loc_model.surface
+        if isinstance(loc_model, PolyhedralModel)
+        else ModelSurface.from_arrays(loc_model.surface_points(), loc_model.surface_normals())
+    )
+    t = time.perf_counter()
+    segments: list[SegmentReport] = []
+    seg_data: list[tuple[FloatArray, Segmentation | None]] = []
+    if len(obj) >= min_segment_points:
+        graph = build_graph(obj, m=m, threshold=4.0 * spacing)
+        from scipy.sparse import csgraph
+
+        _, comp = csgraph.connected_components(graph.adjacency, directed=True, connection="weak")
+        comp = _merge_components(obj, comp, surface.size)
+        sizes = np.bincount(comp)
+        for c in np.argsort(-sizes):
+            if sizes[c] < min_segment_points:
+                break
+            members = np.flatnonzero(comp == c)
+            seg_pts = obj[members]
+            report, seg = _group_segment(
+                seg_pts, m, spacing, vp, table_plane, normal_rings=2 if noise > 0.2 * spacing else 1
+            )
+            segments.append(SegmentReport(keep[members], report[0], report[1], report[2]))
+            seg_data.append((seg_pts, seg))
+    timing["grouping"] = time.perf_counter() - t
+
+    t_match = 0.0
+    t_refine = 0.0
+    results: list[tuple[PoseHypothesis, FloatArray, float, int]] = []
+    syms = loc_model.symmetries()
+    # Uniform random samples: median nearest-neighbour distance = 0.47 / sqrt(density).
+    from mks_sim.localization.verify import surface_coverage
+
+    for si, (seg_pts, seg) in enumerate(seg_data):
+        rep = segments[si]
+        noise = float(np.median([p.plane.rmse for p in rep.planes])) if rep.planes else 0.0
+        inlier = max(1.0 * spacing, voxel_size, 3.0 * noise)
+        t = time.perf_counter()
+        if isinstance(loc_model, PolyhedralModel):
+            hyps = vertex_hypotheses(loc_model, rep.vertexes, seg_pts, vote_distance=4 * spacing)
+        else:
+            hyps = loc_model.hypotheses(seg_pts, None if seg is None else seg.normals)
+        t_match += time.perf_counter() - t
+        t = time.perf_counter()
+        verified = verify_hypotheses(
+            hyps,
+            surface,
+            seg_pts,
+            inlier_distance=inlier,
+            symmetries=syms,
+            max_icp=max_icp,
+            rng=rng,
+        )
+        t_refine += time.perf_counter() - t
+        best_score = verified[0].hypothesis.score if verified else 0.0
+        if isinstance(loc_model, PolyhedralModel) and best_score < min_score and rep.planes:
+            # Too few vertexes visible: hypotheses from pairs of planes (and the table).
+            t = time.perf_counter()
+            pairs: list[tuple[Plane, FloatArray | None]] = [
+                (r.plane, seg_pts[r.indices]) for r in _diverse_planes(rep.planes)
+            ]
+            if rep.on_table and table_plane is not None:
+                pairs.append((table_plane.flipped(), None))
+            coarse = plane_pair_hypotheses(loc_model, pairs, seg_pts, inlier_distance=inlier)
+            t_match += time.perf_counter() - t
+            t = time.perf_counter()
+            verified += verify_hypotheses(
+                coarse,
+                surface,
+                seg_pts,
+                inlier_distance=inlier,
+                icp_distance=max(4 * inlier, 0.1 * surface.size),
+                symmetries=syms,
+                max_icp=max(4, max_icp // 2),
+                rng=rng,
+            )
+            t_refine += time.perf_counter() - t
+        # Coverage: a pose must show about as much of the model's surface as one view does,
+        # or a small segment (clutter, a fragment) that a piece of the model fits would win.
+        # Counted on the model's fixed sampling (not in scene points): density independent.
+        if verified:
+            cover = surface_coverage(
+                surface.points,
+                np.stack([v.hypothesis.matrix for v in verified]),
+                cKDTree(seg_pts),
+                max(inlier, 1.5 * spacing, voxel_size),
+            )
+        for k, v in enumerate(verified):
+            coverage = min(1.0, float(cover[k]) / VISIBLE_FRACTION)
+            h = replace(v.hypothesis, score=v.hypothesis.score * coverage)
+            results.append((h, v.equivalents, v.inlier_fraction, si))
+    results.sort(key=lambda r: (-r[0].score, r[0].rmse))
+    results = results[:max_hypotheses]
+    if voxel_size > 0 and results:
+        # The voxel-averaged cloud found the pose; polish the best on the full-resolution
+        # points near it (averaging blurs edges by about a voxel).
+        t = time.perf_counter()
+        h0, eq0, frac0, si0 = results[0]
+        results[0] = (_polish_full_resolution(h0, surface, raw, voxel_size, rng), eq0, frac0, si0)
+        t_refine += time.perf_counter() - t
+    timing["matching"] = t_match
+    timing["refinement"] = t_refine
+    # the engine's common stage names (``localize --json`` reports the same)
+    timing["representation"] = timing["graph"] + timing["table"] + timing["grouping"]
+    timing["hypotheses"] = t_match
+    timing["verification"] = t_refine
+    timing["total"] = time.perf_counter() - t0
+    found = bool(results) and results[0][0].score >= min_score
+    log.info(
+        "localize_cloud(%s): %d segments, %d hypotheses, best score %.3f, %.3f s",
+        loc_model.name,
+        len(segments),
+        len(results),
+        results[0][0].score if results else float("nan"),
+        timing["total"],
+    )
+    return Localization(
+        found=found,
+        hypotheses=tuple(r[0] for r in results),
+        equivalents=tuple(r[1] for r in results),
+        inlier_fractions=tuple(r[2] for r in results),
+        segment_of=tuple(r[3] for r in results),
+        segments=tuple(segments),
+        table=table_plane,
+        spacing=spacing,
+        noise=noise,
+        voxel=voxel_size,
+        dropped_nan=dropped,
+        timing=timing,
+        warnings=(size_warning,) if size_warning else (),
+    )
+
+
+def _polish_full_resolution(
+    h: PoseHypothesis,
+    surface: ModelSurface,
+    raw: FloatArray,
+    voxel: float,
+    rng: np.random.Generator,
+    max_points: int = 4000,
+) -> PoseHypothesis:
+    """Point-to-plane ICP of a pose on the raw (not voxel-averaged) points near it; the pose
+    is kept when ICP fails or moves it by more than a voxel."""
+    from mks_sim.models.refine import icp_point_to_plane
+
+    T = np.asarray(h.matrix, dtype=np.float64)
+    centre = T[:3, :3] @ surface.points.mean(axis=0) + T[:3, 3]
+    radius = 0.5 * surface.size + 2.0 * voxel
+    near = raw[np.linalg.norm(raw - centre, axis=1) <= radius]
+    if len(near) < 30:
+        return h
+    if len(near) > max_points:
+        near = near[rng.choice(len(near), max_points, replace=False)]
+    try:
+        icp = icp_point_to_plane(surface, near, T, max_distance=2.0 * voxel, max_iterations=15)
+    except MksError:
+        return h
+    moved = float(np.linalg.norm(icp.matrix[:3, 3] - T[:3, 3]))
+    if not np.all(np.isfinite(icp.matrix)) or moved > voxel:
+        return h
+    ref_model = np.linalg.solve(T[:3, :3], h.reference_point - T[:3, 3])
+    ref = icp.matrix[:3, :3] @ ref_model + icp.matrix[:3, 3]
+    return replace(h, matrix=icp.matrix, reference_point=ref)
+
+
+def _diverse_planes(
+    planes: Sequence[PlanarRegion], max_planes: int = 5, per_direction: int = 2
+) -> list[PlanarRegion]:
+    """The largest planes, at most ``per_direction`` per normal direction (20 deg), so that
+    a face split by noise does not crowd out the other orientations."""
+    chosen: list[PlanarRegion] = []
+    for r in planes:
+        same = sum(1 for c in chosen if abs(c.normal @ r.normal) > np.cos(np.radians(20)))
+        if same < per_direction:
+            chosen.append(r)
+        if len(chosen) == max_planes:
+            break
+    return chosen
+
+
+def _pca_extent(points: FloatArray) -> float:
+    """Diagonal of the bounding box in the points' principal axes (rotation invariant)."""
+    c = points - points.mean(axis=0)
+    _, _, vt = np.linalg.svd(c[:: max(1, len(c) // 2000)], full_matrices=False)
+    return float(np.linalg.norm(np.ptp(c @ vt.T, axis=0)))
+
+
+def _merge_components(
+    points: FloatArray, labels: NDArray[np.intp], model_size: float, min_points: int = 10
+) -> NDArray[np.intp]:
+    """Join SPG components that one object could span: self-occlusion splits an object
+    (a hidden step wall leaves a gap). Two components merge when they come within a quarter
+    of the model's size of each other and together still fit in 1.1 x its size."""
+    sizes = np.bincount(labels)
+    ids = [int(c) for c in np.flatnonzero(sizes >= min_points)]
+    if len(ids) < 2:
+        return labels
+    parent = {c: c for c in ids}
+
+    def root(c: int) -> int:
+        while parent[c] != c:
+            c = parent[c]
+        return c
+
+    members = {c: np.flatnonzero(labels == c) for c in ids}
+    trees = {c: cKDTree(points[members[c]]) for c in ids}
+    for a, b in itertools.combinations(ids, 2):
+        ra, rb = root(a), root(b)
+        if ra == rb:
+            continue
+        d, _ = trees[a].query(points[members[b]], distance_upper_bound=0.25 * model_size)
+        if not np.isfinite(d).any():
+            continue
+        joined = np.concatenate([members[c] for c in ids if root(c) in (ra, rb)])
+        if _pca_extent(points[joined]) <= 1.1 * model_size:
+            parent[rb] = ra
+    out = labels.copy()
+    for c in ids:
+        out[members[c]] = root(c)
+    return out
+
+
+def _group_segment(
+    seg_pts: FloatArray,
+    m: int,
+    spacing: float,
+    viewpoint: FloatArray | None,
+    table_plane: Plane | None,
+    normal_rings: int = 1,
+) -> tuple[tuple[tuple[PlanarRegion, ...], Vertexes, bool], Segmentation | None]:
+    graph = build_graph(seg_pts, m=m)
+    try:
+        seg = segment_surfaces(
+            seg_pts, graph, viewpoint=viewpoint, seeds="all", normal_rings=normal_rings
+        )
+    except DataError:
+        empty = Vertexes(
+            np.zeros((0, 3)), np.zeros((0, 3), np.intp), np.zeros((0, 3, 3)), np.zeros(0)
+        )
+        return ((), empty, False), None
+    on_table = table_plane is not None and bool(
+        np.min(table_plane.distance(seg_pts)) <= 4.0 * spacing
+    )
+    extra = [table_plane.flipped()] if on_table and table_plane is not None else []
+    verts = plane_vertexes(
+        seg.planes, seg_pts, extra_planes=extra, tolerance=4 * max(spacing, seg.spacing)
+    )
+    return (seg.planes, verts, on_table), seg
