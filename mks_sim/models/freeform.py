@@ -104,6 +104,8 @@ class FreeformConfig:
             within this angle of the scene normals (a check of the transform, not a feature).
         retry_votes: below this many votes at the best maximum, pairing is widened (see
             :meth:`FreeformModel.hypotheses`).
+        retry_matches: model points paired per keypoint in the widened pass (default
+            ``3 x matches_per_keypoint``).
         first_starts: :meth:`FreeformModel.localize` first verifies only this many of the
             first pass's most voted hypotheses...
         accept_score: ...and stops there when the best verified score reaches this and no
@@ -130,6 +132,7 @@ class FreeformConfig:
     mode_angle_deg: float = 12.0
     normal_tolerance_deg: float = 40.0
     retry_votes: int = 150
+    retry_matches: int | None = None
     first_starts: int = 4
     accept_score: float | None = 0.95
     accept_margin: float = 0.05
@@ -450,7 +453,7 @@ class FreeformModel:
             wide = self.detect(
                 scene_points,
                 scene_normals,
-                matches=3 * self.config.matches_per_keypoint,
+                matches=self.config.retry_matches or 3 * self.config.matches_per_keypoint,
                 keypoints=res.keypoints,  # the same scene: its keypoints are not recomputed
             )
             hyps = sorted(hyps + wide.hypotheses, key=lambda h: -h.votes)
@@ -518,7 +521,7 @@ class FreeformModel:
             wide = self.detect(
                 scene,
                 scene_normals,
-                matches=3 * cfg.matches_per_keypoint,
+                matches=cfg.retry_matches or 3 * cfg.matches_per_keypoint,
                 keypoints=res.keypoints,
             )
             rest = sorted(rest + wide.hypotheses, key=lambda h: -h.votes)
