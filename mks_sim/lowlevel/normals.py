@@ -66,10 +66,8 @@ class SurfaceNormals:
 
 
 def build_graph(points: FloatArray, m: int = 12, threshold: float | None = None) -> GraphLike:
-    """The spatial proximity graph of ``points`` (m nearest neighbours, optional threshold).
-
-    Uses :class:`mks_sim.lowlevel.spg.SpatialProximityGraph`.
-    """
+    """``SpatialProximityGraph(points, m=m, threshold=threshold)`` (the one SPG; this name is
+    kept for callers outside the low level until they construct the SPG themselves)."""
     return SpatialProximityGraph(points, m=m, threshold=threshold)
 
 
@@ -248,7 +246,7 @@ def estimate_normals(
     """
     pts = as_points(points, "estimate_normals: points", min_points=3)
     if graph is None:
-        graph = build_graph(pts, m=m)
+        graph = SpatialProximityGraph(pts, m=m)
     normals, curvature = _ring_pca(pts, graph, normal_rings)
     if curvature_rings != normal_rings:
         _, curvature = _ring_pca(pts, graph, curvature_rings)

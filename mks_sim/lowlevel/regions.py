@@ -23,11 +23,11 @@ from mks_sim.lowlevel.normals import (
     GraphLike,
     SurfaceNormals,
     as_points,
-    build_graph,
     curvature_code,
     estimate_normals,
     neighbour_table,
 )
+from mks_sim.lowlevel.spg import SpatialProximityGraph
 
 __all__ = [
     "CurvedRegion",
@@ -491,7 +491,7 @@ def segment_surfaces(
     if seeds not in ("planar", "all"):
         raise DataError(f"segment_surfaces: seeds must be 'planar' or 'all', got {seeds!r}")
     if graph is None:
-        graph = build_graph(pts, m=m)
+        graph = SpatialProximityGraph(pts, m=m)
     graph = _FixedGraph(sparse.csr_array(graph.adjacency))  # the SPG builds it per access
     if surface_normals is not None and len(surface_normals.normals) == len(pts):
         sn = surface_normals
