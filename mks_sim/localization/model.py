@@ -43,6 +43,7 @@ from mks_sim.models.refine import ModelSurface, detect_symmetries
 
 if TYPE_CHECKING:
     from mks_sim.geometry.meshes import Mesh
+    from mks_sim.models.database import ModelDatabase
 
 __all__ = [
     "KINDS",
@@ -51,6 +52,8 @@ __all__ = [
     "ModelFace",
     "PolyhedralModel",
     "adapt_model",
+    "db_for",
+    "default_db",
     "load_model",
     "PLANAR_AREA_FRACTION",
     "mesh_kind",
@@ -596,3 +599,23 @@ def adapt_model(entry: Any, name: str) -> LocalizableModel:
         f"model {name!r}: database entry of type {type(entry).__name__} has no mesh, vertexes "
         "or model points to localize with"
     )
+
+
+# --------------------------------------------------------------------------- the database
+
+
+@functools.lru_cache(maxsize=1)
+def default_db() -> ModelDatabase:
+    """The shipped model database (``tasks/models``), loaded once."""
+    from mks_sim.models.database import ModelDatabase
+
+    return ModelDatabase.from_dir()
+
+
+@functools.lru_cache(maxsize=4)
+def db_for(models: tuple[str, ...]) -> ModelDatabase:
+    """The model database of the shipped folder plus ``models`` (``--models``), loaded once."""
+    from mks_sim.models.database import ModelDatabase
+    from mks_sim.models.objects import models_dirs
+
+    return ModelDatabase.from_dirs(models_dirs(models))

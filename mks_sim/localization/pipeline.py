@@ -7,12 +7,16 @@
 2. :func:`polyhedral_candidates` — vertex hypotheses (and plane-pair hypotheses when too few
    vertexes are seen) per segment, pre-scored in one batch, ICP on the best few, scored by
    the explained fraction of the segment times the coverage of the expected visible surface;
-3. :func:`localize_cloud` — the simulator-free pipeline on one recorded cloud (its own table,
+3. :func:`localize_polyhedral` / :func:`localize_sphere` — the workstation's paths over a
+   snapshot (chosen by the model's kind): spheres set aside, candidates, the model's own
+   logical sensor, consistency over the whole cloud, support faces, polish;
+4. :func:`localize_cloud` — the simulator-free pipeline on one recorded cloud (its own table,
    objects, grouping and matching; :mod:`mks_sim.localize` re-exports it).
 """
 
 from __future__ import annotations
 
+import functools
 import itertools
 import logging
 import time
@@ -27,14 +31,20 @@ from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError, MksError
 from mks_sim.io.units import check_scale
-from mks_sim.localization.hypotheses import plane_pair_hypotheses, vertex_hypotheses
-from mks_sim.localization.model import LocalizableModel, PolyhedralModel, load_model
+from mks_sim.localization.hypotheses import (
+    plane_pair_hypotheses,
+    score_spheres,
+    sphere_centre_hough,
+    support_face_hypotheses,
+    vertex_hypotheses,
+)
+from mks_sim.localization.model import LocalizableModel, PolyhedralModel, default_db, load_model
 from mks_sim.localization.representation import (
     Representation,
     spacing_and_noise,
     voxel_average,
 )
-from mks_sim.localization.verify import find_table
+from mks_sim.localization.verify import Consistency, consistency, find_table, rank
 from mks_sim.lowlevel.grouping import (
     PlanarRegion,
     Plane,
@@ -53,6 +63,8 @@ __all__ = [
     "Segment",
     "SegmentReport",
     "localize_cloud",
+    "localize_polyhedral",
+    "localize_sphere",
     "object_segments",
     "polyhedral_candidates",
 ]
@@ -755,3 +767,351 @@ def _group_segment(
         seg.planes, seg_pts, extra_planes=extra, tolerance=4 * max(spacing, seg.spacing)
     )
     return (seg.planes, verts, on_table), seg
+
+
+# --------------------------------------------------------------------------- the workstation paths
+
+# An object segment whose points a consistent candidate explains at least this fraction of
+# needs no support-face hypotheses.
+SUPPORT_EXPLAINED_FRACTION = 0.8
+SPHERE_SENSOR = "Sphere_Detector"
+# Spheres of this radius range found by Sphere_Detector are set aside before polyhedral
+# matching (the workstation's spheres are 3 cm; larger fits are curved-region artefacts).
+MIN_EXPLAINED_SPHERE_M = 0.01
+MAX_EXPLAINED_SPHERE_M = 0.05
+
+
+def _noise_scale(table: Plane | None, spacing: float) -> float:
+    """Inlier distance for consistency checks: 3 sigma of the table's RANSAC inliers, >= 3 mm."""
+    if table is not None and table.rmse > 0:
+        return float(max(0.003, 3.0 * table.rmse))
+    return float(max(0.003, 1.5 * spacing))
+
+
+def _set_aside_spheres(
+    rep: Representation, snap: Any, d0: float, extra: dict[str, Any]
+) -> NDArray[np.bool_]:
+    """(K,) mask over ``rep.objects``: False on the shells of spheres found by the
+    Sphere_Detector (3 cm-ish radii) and of the database's spheres the detector missed
+    (fixed-radius centre Hough + fit + cap check)."""
+    objects = rep.objects
+    keep = np.ones(len(objects), dtype=bool)
+    try:
+        spheres = np.asarray(snap.get(SPHERE_SENSOR).data, dtype=np.float64).reshape(-1, 4)
+    except MksError as exc:
+        log.info("%s unavailable: %s", SPHERE_SENSOR, exc)
+        spheres = np.zeros((0, 4))
+    band = max(rep.table_threshold, 0.003) + 0.001
+    n = 0
+    for s in spheres:
+        if MIN_EXPLAINED_SPHERE_M <= s[3] <= MAX_EXPLAINED_SPHERE_M:
+            keep &= np.abs(np.linalg.norm(objects - s[:3], axis=1) - s[3]) > band
+            n += 1
+    normals = rep.normals.normals
+    for radius in _known_sphere_radii():
+        sub = np.flatnonzero(keep)
+        seeds = sphere_centre_hough(objects[sub], radius, normals[sub])
+        found = [h for _, h, chk in score_spheres(objects[sub], seeds, radius, d0) if chk["ok"]]
+        for h in found:
+            shell = np.abs(np.linalg.norm(objects - h.matrix[:3, 3], axis=1) - radius)
+            keep &= shell > d0 + 0.001
+        n += len(found)
+    extra["spheres_set_aside"] = n
+    return keep
+
+
+def localize_polyhedral(
+    model: Any,
+    entry: Any,
+    snap: Any,
+    sensor: str,
+    rep: Representation,
+    rng: np.random.Generator,
+    timing: dict[str, float],
+) -> tuple[list[PoseHypothesis], dict[str, Any]]:
+    """The workstation's polyhedral path over a snapshot's representation (steps 4-6 of
+    :func:`mks_sim.localization.workstation.localize_object`): spheres set aside, segments,
+    vertex / plane-pair candidates, the model's rotation-invariant Hough on its logical
+    sensor, consistency over the whole cloud, support faces for what stays unexplained, and
+    a final polish; returns (consistent hypotheses best first, diagnostics)."""
+    extra: dict[str, Any] = {}
+    points = rep.points
+    table = rep.table
+    extra["table_z_m"] = None if table is None else float(table.offset / table.normal[2])
+    d = _noise_scale(table, rep.spacing)
+    # Curved objects explained by the sphere detector (the Surface_Curvature grouping of
+    # Table 4-6) are set aside: a sphere resting on the cube would otherwise share its SPG
+    # component and crowd the vertex matcher with facets of the sphere.
+    t = time.perf_counter()
+    keep = _set_aside_spheres(rep, snap, d, extra)
+    objects = rep.objects[keep]
+    extra["object_points"] = len(objects)
+    if len(objects) < 30:
+        timing["hypotheses"] = time.perf_counter() - t
+        return [], extra
+    surface = model.surface
+    segments = object_segments(rep, surface.size, keep=keep)
+    timing["hypotheses"] = time.perf_counter() - t
+    timing["verification"] = 0.0
+    candidates, _ = polyhedral_candidates(model, rep, segments, rng=rng, timing=timing)
+    extra["segments"] = [len(s.indices) for s in segments]
+    extra["candidates"] = len(candidates)
+
+    # the model's own logical sensor (vertexes / control points): support of the estimate
+    t = time.perf_counter()
+    detected: FloatArray | None = None
+    try:
+        detected = np.asarray(snap.get(sensor).data, dtype=np.float64)[:, :3]
+    except MksError as exc:
+        log.info("logical sensor %s unavailable: %s", sensor, exc)
+    extra["detected_features"] = 0 if detected is None else len(detected)
+    surface_pts = np.asarray(model.surface_points(), dtype=np.float64)
+    surface_nrm = np.asarray(model.surface_normals(), dtype=np.float64)
+    # 5'. the model's own matcher on its logical sensor: the rotation-invariant Hough of the
+    # detected vertexes / control points (section 2.2.1), refined by ICP on the points
+    if detected is not None and len(detected) >= 3 and callable(getattr(entry, "detect", None)):
+        try:
+            coarse = list(entry.detect(detected))[:10]
+        except MksError as exc:
+            log.info("%s: rotation-invariant Hough gave nothing: %s", sensor, exc)
+            coarse = []
+        extra["rotinv_maxima"] = len(coarse)
+        timing["hypotheses"] += time.perf_counter() - t
+        t = time.perf_counter()
+        refined = _refine_near(_best_coarse(coarse, model, objects, d, 2), model, objects, d, rng)
+        extra["rotinv_refined"] = len(refined)
+        candidates += refined
+        timing["verification"] += time.perf_counter() - t
+    else:
+        timing["hypotheses"] += time.perf_counter() - t
+
+    # 6. scene consistency of the best candidates over the whole cloud
+    t = time.perf_counter()
+    top = _top(candidates, 5)
+    candidates = [candidates[i] for i in top]
+    checks = [
+        consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree)
+        for h in candidates
+    ]
+    order, good = rank(candidates, checks)
+    timing["verification"] += time.perf_counter() - t
+    extra["inlier_distance_m"] = d
+    unexplained: list[Any] = []
+    if table is not None and _best_covers_little(candidates, checks, order, model, objects, d):
+        # support segments as the sensors separate objects: SPG components over 12 mm edges
+        wide = object_segments(rep, surface.size, keep=keep, gap=rep.gap, merge=False)
+        unexplained = _unexplained_segments(wide, candidates, checks, model, d)
+    if table is not None and unexplained:
+        # The object rests on the table: hypotheses from every support face of the model put
+        # on the sensed table plane (yaw from the footprint's principal axes and 8 fixed
+        # yaws), pre-scored in a batch, the best refined by ICP and checked like the others.
+        t = time.perf_counter()
+        support = support_face_hypotheses(
+            model, unexplained, table, rep.table_threshold, d, rng, timing
+        )
+        t2 = time.perf_counter()
+        checks2 = [
+            consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree)
+            for h in support
+        ]
+        candidates += support
+        checks += checks2
+        order, good = rank(candidates, checks)
+        timing["verification"] += time.perf_counter() - t2
+        extra["support_fallback"] = {
+            "candidates": len(support),
+            "ok": int(sum(c.ok for c in checks2)),
+            "seconds": time.perf_counter() - t,
+        }
+    # Polish: the best-ranked candidate (the two best when it failed the check) gets a full
+    # ICP on the points near it and is checked again (coarse starts stop short).
+    t = time.perf_counter()
+    n_polish = 1 if order and checks[order[0]].ok else 2
+    polished = _refine_near([candidates[i] for i in order[:n_polish]], model, objects, d, rng)
+    if polished:
+        checks3 = [
+            consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree)
+            for h in polished
+        ]
+        candidates += polished
+        checks += checks3
+        order, good = rank(candidates, checks)
+    timing["verification"] += time.perf_counter() - t
+    extra["checks"] = [checks[i].as_dict() for i in order[:5]]
+    if good and detected is not None and len(detected):
+        T = np.asarray(good[0].matrix)
+        model_feats = getattr(model, "vertexes", None)
+        if model_feats is not None:
+            mv = np.asarray(model_feats) @ T[:3, :3].T + T[:3, 3]
+            dist = cKDTree(detected).query(mv)[0]
+            extra["feature_support"] = int((dist < 4 * d).sum())
+    return good, extra
+
+
+def _top(candidates: list[PoseHypothesis], n: int) -> list[int]:
+    """Indices of the ``n`` best-scored candidates (nan last), in that order."""
+    return sorted(range(len(candidates)), key=lambda i: -np.nan_to_num(candidates[i].score))[:n]
+
+
+def _best_coarse(
+    hyps: list[PoseHypothesis], model: Any, objects: FloatArray, d: float, n: int
+) -> list[PoseHypothesis]:
+    """The ``n`` coarse poses explaining the most object points (one batch query)."""
+    from mks_sim.localization.verify import batch_explained
+
+    if len(hyps) <= n or len(objects) == 0:
+        return hyps
+    good = [h for h in hyps if np.asarray(h.matrix).shape == (4, 4)]
+    if len(good) <= n:
+        return good
+    # fraction of the model samples near object points (the scene holds other objects too)
+    tree = cKDTree(objects)
+    pts = np.asarray(model.surface_points(), dtype=np.float64)
+    pts = pts[:: max(1, len(pts) // 300)]
+    score = batch_explained(pts, np.stack([h.matrix for h in good]), tree, 2 * d)
+    return [good[i] for i in np.argsort(-score, kind="stable")[:n]]
+
+
+@functools.lru_cache(maxsize=1)
+def _known_sphere_radii() -> tuple[float, ...]:
+    """Radii of the database's sphere models (metres)."""
+    try:
+        db = default_db()
+    except MksError:
+        return ()
+    radii = []
+    for name in db.names():
+        r = getattr(db.get(name), "radius_m", None)
+        if isinstance(r, float) and r > 0:
+            radii.append(r)
+    return tuple(sorted(set(radii)))
+
+
+def _best_covers_little(
+    candidates: list[PoseHypothesis],
+    checks: list[Consistency],
+    order: list[int],
+    model: Any,
+    objects: FloatArray,
+    d: float,
+) -> bool:
+    """No consistent candidate, or the best shows less of the model's surface than one view
+    does (:data:`VISIBLE_FRACTION` of its samples with an object point
+    nearby; a fraction of the model's fixed sampling, independent of the scan density): the
+    object may be another, partly hidden segment."""
+    from mks_sim.localization.verify import surface_coverage
+
+    if not order or not checks[order[0]].ok or len(objects) == 0:
+        return True
+    T = np.asarray(candidates[order[0]].matrix, dtype=np.float64)
+    cover = surface_coverage(model.surface_points(), T[None], cKDTree(objects), d)
+    return bool(cover[0] < VISIBLE_FRACTION)
+
+
+def _unexplained_segments(
+    segments: list[Any],
+    candidates: list[PoseHypothesis],
+    checks: list[Consistency],
+    model: Any,
+    d: float,
+) -> list[Any]:
+    """The object segments that no consistent candidate explains (less than
+    :data:`SUPPORT_EXPLAINED_FRACTION` of their points within ``d`` of one of the posed
+    models): they get the support-face hypotheses (an object seen only partly, e.g. under
+    the sphere, gives no vertexes). A fraction, not a point count: independent of density."""
+    pts = np.asarray(model.surface_points(), dtype=np.float64)
+    posed = [
+        pts @ np.asarray(h.matrix)[:3, :3].T + np.asarray(h.matrix)[:3, 3]
+        for h, c in zip(candidates, checks)
+        if c.ok
+    ]
+    trees = [cKDTree(P) for P in posed]
+    out = []
+    for seg in segments:
+        covered = np.zeros(len(seg.points), dtype=bool)
+        for tree in trees:
+            covered |= np.isfinite(tree.query(seg.points, distance_upper_bound=d)[0])
+        if covered.mean() < SUPPORT_EXPLAINED_FRACTION:
+            out.append(seg)
+    return out
+
+
+def _refine_near(
+    hyps: list[PoseHypothesis], model: Any, objects: FloatArray, d: float, rng: np.random.Generator
+) -> list[PoseHypothesis]:
+    """ICP-refine coarse poses on the object points near each (model -> world)."""
+    from mks_sim.models.refine import ModelSurface, verify_hypotheses
+
+    if not hyps or len(objects) < 10:
+        return []
+    pts = np.asarray(model.surface_points(), dtype=np.float64)
+    surface = getattr(model, "surface", None)
+    if not isinstance(surface, ModelSurface) or surface.points is not pts:
+        surface = ModelSurface.from_arrays(pts, model.surface_normals())
+    centre = pts.mean(axis=0)
+    radius = float(np.max(np.linalg.norm(pts - centre, axis=1)))
+    out: list[PoseHypothesis] = []
+    for h in hyps:
+        T = np.asarray(h.matrix, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            continue
+        c = T[:3, :3] @ centre + T[:3, 3]
+        near = objects[np.linalg.norm(objects - c, axis=1) <= radius + 2 * d]
+        if len(near) < 10:
+            continue
+        verified = verify_hypotheses(
+            [h],
+            surface,
+            near,
+            inlier_distance=d,
+            icp_distance=max(4 * d, 0.1 * surface.size),
+            symmetries=model.symmetries(),
+            max_icp=1,
+            max_scene_points=1000,
+            rng=rng,
+        )
+        out.extend(v.hypothesis for v in verified)
+    return out
+
+
+def localize_sphere(
+    model: Any,
+    snap: Any,
+    sensor: str,
+    rep: Representation,
+    rng: np.random.Generator,
+    timing: dict[str, float],
+) -> tuple[list[PoseHypothesis], dict[str, Any]]:
+    """Sphere: Sphere_Detector rows of the model's radius plus a fixed-radius centre Hough
+    (votes ``p - r n``), each refined by a fixed-radius robust fit and scored by how much of
+    the sphere's upper cap the sensed points cover."""
+    del rng
+    extra: dict[str, Any] = {}
+    t = time.perf_counter()
+    try:
+        rows = np.asarray(snap.get(sensor).data, dtype=np.float64).reshape(-1, 4)
+    except MksError as exc:
+        log.info("logical sensor %s unavailable: %s", sensor, exc)
+        rows = np.zeros((0, 4))
+    extra["detected_features"] = len(rows)
+    radius = float(model.radius_m)
+    match = model.match(rows) if hasattr(model, "match") else np.arange(len(rows))
+    extra["matched"] = len(match)
+    objects = rep.objects
+    d = _noise_scale(rep.table, rep.spacing)
+    seeds = [rows[i, :3] for i in match]
+    seeds += sphere_centre_hough(objects, radius, rep.normals.normals)
+    timing["hypotheses"] = time.perf_counter() - t
+    extra["candidates"] = len(seeds)
+
+    t = time.perf_counter()
+    scored = score_spheres(objects, seeds, radius, d)
+    scored.sort(key=lambda x: (not x[2]["ok"], -x[0], x[1].rmse))
+    extra["inlier_distance_m"] = d
+    extra["checks"] = [chk for _, _, chk in scored[:5]]
+    good: list[PoseHypothesis] = []
+    for _, h, chk in scored:
+        if chk["ok"] and all(np.linalg.norm(h.matrix[:3, 3] - g.matrix[:3, 3]) > d for g in good):
+            good.append(h)
+    timing["verification"] = time.perf_counter() - t
+    return good, extra

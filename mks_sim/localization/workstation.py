@@ -1,0 +1,328 @@
+"""Localization at the workstation, end to end from simulated sensors (paper section 4).
+
+:func:`localize_object` runs the paper's execution flow (section 4, steps 1-7) for one object:
+
+1. **Invoke the model.** The object comes from the model database
+   (``mks_sim.models.objects.load_object``: mesh, localization kinds, logical sensor); its
+   default KIND picks the pipeline (``sphere`` or the polyhedral surface of its mesh, plus
+   the ``rotinv`` model it names: the cube's vertexes, the part's control points).
+2. **Activate the logical sensors it needs** through a :class:`~mks_sim.sensing.SensorGraph`
+   snapshot on the devices: only the model's sensor and its inputs
+   (``graph.required([sensor])``) run; a failed device is replaced by the sensor's alternate
+   (``Range_Points`` served by ``Stereo_Points`` when the range finder fails), which the
+   snapshot's provenance reports. Ground truth is never read.
+3. **The snapshot's representation** of the points (``snap.representation``,
+   :mod:`mks_sim.localization.representation`): k-d tree, the table plane (RANSAC near its
+   nominal height) and the objects above it, their SPG, normals, curvature and planar /
+   curved segmentation, each computed once and shared with the description sensors.
+4. **Grouping**: object segments (SPG components; spheres set aside), their planar regions
+   and vertexes (the table is the face an object rests on).
+5. **Matching**: vertex-frame Hough votes / the rotation-invariant Hough of section 2.2.1 for the
+   polyhedral models (cube, industrial part; :mod:`mks_sim.localization.pipeline`); the
+   sphere model picks the ``Sphere_Detector`` rows of its radius.
+6. **Refinement**: point-to-plane ICP (cube, part) or a geometric sphere fit to the points
+   near the detected sphere, and a scene-consistency check of every candidate (no sensed point
+   inside the posed model or seen through it, no penetration of the table) that picks the
+   candidate explaining the most points.
+7. **Report** the transformation ``object_to_world`` (4x4, column convention, metres) of the
+   object's BODY frame — the frame :mod:`mks_sim.sim.truth` reports: the cube's and the
+   sphere's centre, the industrial part's bottom-face centre (``industrial_part_mesh``).
+
+Example:
+    >>> import numpy as np
+    >>> from mks_sim.sim.world import build_world
+    >>> from mks_sim.devices import make_devices
+    >>> from mks_sim.localization.workstation import localize_object
+    >>> world = build_world("scene2", seed=1)
+    >>> with make_devices(world.model, world.data, np.random.default_rng(1)) as devices:
+    ...     result = localize_object(world, "cube", devices)  # doctest: +SKIP
+    >>> result.object_to_world  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mks_sim.errors import MksError, NotFound, SensorFailure
+from mks_sim.localization.model import PolyhedralModel, db_for, default_db, model_kind
+from mks_sim.localization.pipeline import localize_polyhedral, localize_sphere
+from mks_sim.localization.representation import RepresentationConfig
+from mks_sim.models.pose import PoseHypothesis
+
+if TYPE_CHECKING:
+    from mks_sim.lowlevel.grouping import Plane
+    from mks_sim.models.database import ModelDatabase
+    from mks_sim.sensing import SensorGraph
+
+__all__ = [
+    "POINTS_SENSOR",
+    "REPRESENTATION_SENSOR",
+    "WorkstationLocalization",
+    "find_table",
+    "localize",
+    "localize_object",
+    "table_z_m",
+    "workstation_representation",
+]
+
+log = logging.getLogger(__name__)
+FloatArray = NDArray[np.float64]
+
+POINTS_SENSOR = "Range_Points"
+
+#: The description sensor whose ``params`` (``sensors/points.toml``: nominal table height and
+#: margin, SPG gap and neighbours) the flow's representation of ``Range_Points`` shares.
+REPRESENTATION_SENSOR = "Vertex_Detector"
+
+
+def workstation_representation(graph: SensorGraph | None = None) -> RepresentationConfig:
+    """The representation the flow asks the snapshot for: the parameters of
+    :data:`REPRESENTATION_SENSOR` in the sensor files (default graph: ``sensors/``), so the
+    description sensors and the matchers share one representation of ``Range_Points``.
+
+    Raises:
+        SpecError: the sensor has no ``table_z_m`` parameter (a sensor calibration value).
+    """
+    from mks_sim.errors import SpecError
+
+    graph = graph if graph is not None else _default_graph()
+    spec = graph.sensor(REPRESENTATION_SENSOR)
+    params = spec.params
+    if not isinstance(params.get("table_z_m"), int | float):
+        raise SpecError(
+            f"sensor {REPRESENTATION_SENSOR}: field 'params.table_z_m': expected the nominal "
+            f"table height (metres), got {params.get('table_z_m')!r}"
+        )
+    return RepresentationConfig(
+        table_z_m=float(params["table_z_m"]),
+        table_margin_m=float(params.get("table_margin_m", 0.002)),
+        gap_m=float(params.get("gap_m", 0.012)),
+        m=int(params.get("m", 12)),
+    )
+
+
+def table_z_m(graph: SensorGraph | None = None) -> float:
+    """The nominal table height (metres): a sensor calibration parameter, ``table_z_m`` of
+    :data:`REPRESENTATION_SENSOR` (``sensors/points.toml``)."""
+    z = workstation_representation(graph).table_z_m
+    assert z is not None  # checked by workstation_representation
+    return z
+
+
+@dataclass(frozen=True, eq=False)
+class WorkstationLocalization:
+    """Result of :func:`localize_object`.
+
+    Attributes:
+        object: ``cube`` | ``sphere`` | ``part``.
+        found: a candidate passed verification.
+        object_to_world: (4, 4) column-convention pose of the object's body frame in the world
+            frame (metres), or None when not found.
+        hypotheses: verified candidates, best first (``matrix`` model -> world).
+        provenance: logical sensor -> the way that served it (``"primary"`` or an alternate's
+            name, e.g. ``{"Range_Points": "Stereo_Points"}``).
+        time_s: wall-clock seconds of the whole flow (sensing included).
+        diagnostics: model name and source, sensors run, point counts, per-stage seconds,
+            candidate checks.
+    """
+
+    object: str
+    found: bool
+    object_to_world: FloatArray | None
+    hypotheses: tuple[PoseHypothesis, ...]
+    provenance: dict[str, str]
+    time_s: float
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def matrix(self) -> FloatArray | None:
+        """Alias of :attr:`object_to_world`."""
+        return self.object_to_world
+
+
+# --------------------------------------------------------------------------- resources
+
+
+@functools.lru_cache(maxsize=1)
+def _default_graph() -> SensorGraph:
+    from mks_sim.sensing import SensorGraph
+
+    return SensorGraph.from_dir()
+
+
+_SURFACES: dict[int, tuple[Any, Any]] = {}
+
+
+def _surface_model(name: str, mesh: Any) -> Any:
+    """The polyhedral model (surface samples, corners, faces) of an object's mesh, built once
+    per mesh."""
+    hit = _SURFACES.get(id(mesh))
+    if hit is None or hit[0] is not mesh:
+        hit = (mesh, PolyhedralModel.from_mesh(mesh, name))
+        _SURFACES[id(mesh)] = hit
+    return hit[1]
+
+
+def _resolve_model(
+    obj: str, db: ModelDatabase | None, models: Sequence[str | Path] = ()
+) -> tuple[str, Any, str, str, Any]:
+    """(model name, localizable model, its logical sensor, source, database entry or None).
+
+    The object comes from the model database (``mks_sim.models.objects.load_object``): its
+    default localization KIND picks the pipeline (``sphere``: the sphere model of its radius;
+    otherwise the polyhedral surface of its mesh), its ``sensor`` the logical sensor; a
+    ``rotinv`` model it names (the cube's vertexes, the part's control points) adds the
+    rotation-invariant Hough of that sensor's points.
+
+    Raises:
+        NotFound: unknown object.
+    """
+    from mks_sim.models.objects import load_object, object_names
+
+    try:
+        spec = load_object(obj, models=models)
+    except NotFound:
+        raise NotFound(
+            f"localize_object: unknown object {obj!r}; expected one of {object_names(models)}"
+        ) from None
+    if db is None:
+        db = default_db() if not models else db_for(tuple(str(m) for m in models))
+    sensor = spec.sensor
+    if spec.kind == "sphere":
+        try:
+            entry = spec.model("sphere", db=db)
+        except NotFound:
+            from mks_sim.models.sphere import SphereModel
+
+            r = float(np.max(np.linalg.norm(spec.mesh.vertices, axis=1)))
+            entry = SphereModel(f"{spec.name}_sphere", r, 0.004)
+        return str(getattr(entry, "name", spec.name)), entry, sensor, "database", entry
+    entry = None
+    if "rotinv" in spec.models:
+        try:
+            entry = spec.model("rotinv", db=db)
+        except NotFound as exc:
+            log.info("object %r: %s", obj, exc)
+    name = spec.models.get("rotinv", spec.name)
+    return name, _surface_model(name, spec.mesh), sensor, "database + object mesh", entry
+
+
+# --------------------------------------------------------------------------- the flow
+
+
+def localize_object(
+    world: Any,
+    object_name: str,
+    devices: Mapping[str, Any],
+    *,
+    rng: np.random.Generator | None = None,
+    graph: SensorGraph | None = None,
+    db: ModelDatabase | None = None,
+    models: Sequence[str | Path] = (),
+) -> WorkstationLocalization:
+    """Localize one object from the devices' readings (paper section 4, steps 1-7).
+
+    Args:
+        world: the simulated world (unused by the flow itself: sensing goes through
+            ``devices``; kept so the signature matches the grasp episode's ``localize_fn``).
+        object_name: an object of the model database (``cube``, ``sphere``, ``part``, ...).
+        devices: device name -> device (``mks_sim.devices.make_devices``); failed or missing
+            devices are replaced by the logical sensors' alternates.
+        rng: generator for RANSAC and subsampling (default seeded 0).
+        graph: the logical sensors (default ``SensorGraph.from_dir()``).
+        db: the model database (default ``ModelDatabase.from_dir()``).
+        models: extra model-database folders (``--models``; objects and models).
+
+    Returns:
+        :class:`WorkstationLocalization` (``found`` False when no candidate passes).
+
+    Raises:
+        NotFound: unknown object name.
+        SensorFailure: the points sensor and all its alternates failed.
+    """
+    del world  # sensing goes through the devices only; never ground truth
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(0) if rng is None else rng
+    graph = graph if graph is not None else _default_graph()
+    timing: dict[str, float] = {}
+
+    # 1. the model from the database; it names its logical sensor
+    t = time.perf_counter()
+    model_name, model, sensor, source, entry = _resolve_model(object_name, db, models)
+    timing["model"] = time.perf_counter() - t
+    diag: dict[str, Any] = {"model": model_name, "model_source": source, "sensor": sensor}
+
+    # 2. activate only the logical sensors the model needs
+    t = time.perf_counter()
+    snap = graph.snapshot(devices)
+    try:
+        diag["sensors_required"] = sorted(graph.required([sensor]))
+    except MksError:
+        diag["sensors_required"] = [sensor]
+    stream = snap.get(POINTS_SENSOR)
+    timing["sensing"] = time.perf_counter() - t
+    diag["points"] = len(stream.data)
+    if len(stream.data) < 50:
+        raise SensorFailure(POINTS_SENSOR, f"expected >= 50 points, got {len(stream.data)}")
+    t_proc = time.perf_counter()
+    # 3. the snapshot's one low-level representation (shared with the description sensors)
+    t = time.perf_counter()
+    rep = snap.representation(POINTS_SENSOR, workstation_representation(graph))
+    rep.segmentation  # noqa: B018 - normals, curvature and regions, once
+    timing["representation"] = time.perf_counter() - t
+    points = rep.points
+    diag["representation_points"] = len(points)
+
+    kind = model_kind(model)
+    diag["kind"] = kind
+    if kind == "sphere":
+        hyps, extra = localize_sphere(model, snap, sensor, rep, rng, timing)
+    else:
+        hyps, extra = localize_polyhedral(model, entry, snap, sensor, rep, rng, timing)
+    timing["processing"] = time.perf_counter() - t_proc
+    diag.update(extra)
+    diag["timing"] = timing
+    provenance = dict(snap.provenance)
+    found = bool(hyps)
+    T = np.asarray(hyps[0].matrix, dtype=np.float64) if found else None
+    total = time.perf_counter() - t0
+    timing["total"] = total
+    log.info(
+        "localize_object(%s): found=%s via %s in %.2f s (%s)",
+        object_name,
+        found,
+        provenance.get(POINTS_SENSOR, "?"),
+        total,
+        model_name,
+    )
+    return WorkstationLocalization(
+        object=object_name,
+        found=found,
+        object_to_world=T,
+        hypotheses=tuple(hyps),
+        provenance=provenance,
+        time_s=total,
+        diagnostics=diag,
+    )
+
+
+#: Alias used by the grasp episode (``mks_sim.tasks.episode.sensor_localize_fn``).
+localize = localize_object
+
+
+def find_table(points: FloatArray, rng: np.random.Generator) -> tuple[Plane | None, float]:
+    """The supporting plane near the nominal table height and its band half-width (the one
+    table finder, :func:`mks_sim.localization.verify.find_table`)."""
+    from mks_sim.localization.verify import find_table as _find
+
+    plane, thr, _ = _find(points, rng, spacing=0.0, noise=0.0, near_z=table_z_m())
+    return plane, thr
