@@ -270,9 +270,10 @@ def fit_sphere(points: ArrayLike) -> SphereFit:
             damping *= 10.0
         if not improved:
             break
-        converged = cost - cost_new <= 1e-15 * max(cost, 1e-300) or np.linalg.norm(
+        # scipy's lm stops at relative 1e-8 changes; 1e-10 here
+        converged = cost - cost_new <= 1e-10 * max(cost, 1e-300) or np.linalg.norm(
             step
-        ) <= 1e-12 * (np.linalg.norm(x) + 1e-12)
+        ) <= 1e-10 * (np.linalg.norm(x) + 1e-12)
         x, d, length, res, cost = x_new, d_new, length_new, res_new, cost_new
         damping = max(damping / 10.0, 1e-12)
         if converged:
