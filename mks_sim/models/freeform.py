@@ -516,7 +516,7 @@ class FreeformModel:
             if cfg.accept_gap is not None and second is not None:
                 if best >= cfg.accept_gap_floor and gap >= cfg.accept_gap:
                     return first
-        rest = hyps[n1:]
+        every = hyps
         if (hyps[0].votes if hyps else 0) < cfg.retry_votes:
             wide = self.detect(
                 scene,
@@ -524,21 +524,31 @@ class FreeformModel:
                 matches=cfg.retry_matches or 3 * cfg.matches_per_keypoint,
                 keypoints=res.keypoints,
             )
-            rest = sorted(rest + wide.hypotheses, key=lambda h: -h.votes)
-        if not rest or max_icp <= n1:
-            return first
-        # Starts already verified (up to a symmetry) are not refined again.
+            every = sorted(hyps + wide.hypotheses, key=lambda h: -h.votes)
+        # The starts the full verification would take (the max_icp most voted distinct
+        # placements of both passes, as verify_hypotheses chooses them), less those already
+        # refined above (up to a symmetry).
         size = surface.size
+        k1 = len(hyps[:n1])
         labels = group_equivalent(
-            [h.matrix for h in hyps[:n1] + rest],
+            [h.matrix for h in hyps[:n1] + every],
             self._symmetries,
             rotation_tol_deg=8.0,
             translation_tol=0.05 * size,
         )
-        k1 = len(hyps[:n1])
-        rest = [h for i, h in enumerate(rest) if labels[k1 + i] >= k1]
+        rest = [h for i, h in enumerate(every) if labels[k1 + i] >= k1]
+        starts = group_equivalent(
+            [h.matrix for h in every],
+            self._symmetries,
+            rotation_tol_deg=8.0,
+            translation_tol=0.05 * size,
+        )
+        chosen = {id(h) for h in [h for i, h in enumerate(every) if starts[i] == i][:max_icp]}
+        rest = [h for h in rest if id(h) in chosen]
+        if not rest:
+            return first
         merged = sorted(
-            first + verify(rest, max_icp - n1),
+            first + verify(rest, len(rest)),
             key=lambda v: (-v.hypothesis.score, v.hypothesis.rmse),
         )
         keep = group_equivalent(
