@@ -310,3 +310,10 @@ def test_compiled_ring_moments_match_sparse_ring_matrix() -> None:
         want_n, want_c = _pca_sparse(pts, _ring_matrix(g, rings))
         assert np.allclose(curv, want_c, atol=1e-10)
         assert np.all(np.abs(np.einsum("ij,ij->i", nrm, want_n)) > 1.0 - 1e-9)
+
+
+def test_warm_up_kernels_says_whether_the_compiled_paths_run() -> None:
+    from mks_sim.lowlevel import _gridknn
+    from mks_sim.lowlevel.regions import warm_up_kernels
+
+    assert warm_up_kernels() is _gridknn.available()
