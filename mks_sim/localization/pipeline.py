@@ -80,7 +80,7 @@ VISIBLE_FRACTION = 0.2
 
 #: Scene points of a segment the candidates' full ICP and scores use (a random subset; the
 #: final polish of the best candidate uses up to 1000 near it).
-ICP_POINTS = 500
+ICP_POINTS = 800
 #: Scene points of the coarse ICP stage (6 iterations from every pre-screened start).
 COARSE_POINTS = 300
 
