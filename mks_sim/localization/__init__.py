@@ -8,14 +8,16 @@ Modules, one stage each:
   :func:`representation_of` (the one representation of a stream's points).
 - :mod:`~mks_sim.localization.verify` — the one table finder, batch scoring of candidate
   poses, the one scene-consistency check, ranking.
-- :mod:`~mks_sim.localization.model` — model kinds (``polyhedral``, ``freeform``,
-  ``sphere``; ``auto`` from a mesh), loading a model of a kind.
-- :mod:`~mks_sim.localization.hypotheses` — support-face and sphere-centre hypotheses.
-- :mod:`~mks_sim.localization.pipeline` — object segments and polyhedral candidates over a
-  representation (the stages in order).
+- :mod:`~mks_sim.localization.model` — the model protocol, :class:`PolyhedralModel`,
+  model kinds (``polyhedral``, ``freeform``, ``sphere``; ``auto`` from a mesh), loading.
+- :mod:`~mks_sim.localization.hypotheses` — vertex, plane-pair, rotation-invariant,
+  support-face and sphere-centre hypotheses.
+- :mod:`~mks_sim.localization.pipeline` — object segments, polyhedral candidates, the
+  workstation's paths by model kind, and :func:`localize_cloud` (one recorded cloud).
+- :mod:`~mks_sim.localization.workstation` — the entry from simulated sensors:
+  :func:`localize_object` (snapshot -> representation -> the path of the model's kind).
 
-The simulator-free pipeline is :func:`mks_sim.localize.localize_cloud`; the workstation flow
-is :func:`mks_sim.workstation.localize_object`.
+``mks_sim.localize`` and ``mks_sim.workstation`` re-export these (old imports keep working).
 """
 
 from mks_sim.localization.representation import (
