@@ -121,7 +121,7 @@ class FreeformConfig:
     model_point_spacing: float | None = None
     saliency_floor: float | None = None
     n_views: int = 20
-    max_keypoints: int | None = 300
+    max_keypoints: int | None = None
     matches_per_keypoint: int = 8
     distance_tolerance: float | None = None
     min_side: float | None = None
