@@ -21,9 +21,6 @@ if [ "${BENCH_FORCE:-0}" != 1 ] && awk "BEGIN{exit !($load >= 1.0)}"; then
   echo "run_all: load average $load >= 1: the machine is busy; wait, or BENCH_FORCE=1" >&2
   exit 2
 fi
-# The contrib build of OpenCV in the venv has ppf_match_3d (bench extra); freeform.py runs it
-# in a subprocess with this folder on its path.
-SITE=$($PY -c "import sysconfig; print(sysconfig.get_paths()['purelib'])")
 
 if [ "$PROFILE" = short ]; then
   SIM_N=50; FF_TRIALS=2; GRASP_EP=20; OBJ_N=6; BIN_N=4; BACK_EP=12
@@ -43,7 +40,7 @@ run() {  # name, command...
 run spg $PY benchmarks/spg.py --large
 run localize $PY benchmarks/localize.py --trials 4
 run localize_sim $PY benchmarks/localize_sim.py --n $SIM_N --no-progress --out $R/localize_sim.md
-run freeform $PY benchmarks/freeform.py --trials $FF_TRIALS --cv-contrib "$SITE"
+run freeform $PY benchmarks/freeform.py --trials $FF_TRIALS --cv-contrib venv  # the bench extra's cv2 is the contrib build
 run env $PY benchmarks/env.py
 run grasp $PY benchmarks/grasp.py --episodes $GRASP_EP --workers 2
 run objects $PY benchmarks/objects.py --n $OBJ_N --workers 2 --out $R/objects.md
