@@ -75,15 +75,9 @@ def _localize(name: str, scene: str | None, seed: int, models: list[Path]) -> di
     return run_trial(name, seed, (), scene, models=[str(m) for m in models])
 
 
-UPSIDE_DOWN = pytest.mark.xfail(
-    strict=False,
-    reason="seed 12 drops the part upside down; the engine does not find it yet (reported)",
-)
-
-
 @pytest.mark.parametrize(
     ("name", "seed"),
-    [("cube", 11), ("cube", 12), ("part", 11), pytest.param("part", 12, marks=UPSIDE_DOWN)],
+    [("cube", 11), ("cube", 12), ("part", 11), ("part", 12)],  # part 12: upside down
 )
 def test_database_object_dropped_is_localized(tmp_path: Path, name: str, seed: int) -> None:
     scene = tmp_path / "drop.toml"

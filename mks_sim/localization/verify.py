@@ -170,6 +170,11 @@ class Consistency:
 
 
 _MODEL_TREES: dict[int, tuple[Any, cKDTree]] = {}
+_SPACINGS: dict[tuple[str, int], tuple[Any, float]] = {}
+#: Eight horizontal unit directions (the openings around a point under an overhang).
+_DIRS8 = np.stack(
+    [np.cos(np.arange(8) * np.pi / 4), np.sin(np.arange(8) * np.pi / 4)], axis=1
+)
 
 
 def _model_tree(surface_pts: FloatArray) -> cKDTree:
@@ -190,6 +195,22 @@ def _model_tree(surface_pts: FloatArray) -> cKDTree:
         return tree
     _MODEL_TREES[key] = (ref, tree)
     return tree
+
+
+def _model_spacing(surface_pts: FloatArray) -> float:
+    """Median nearest-neighbour distance of a model's surface samples (cached with its tree)."""
+    key = ("spacing", id(surface_pts))
+    hit = _SPACINGS.get(key)
+    if hit is not None and hit[0]() is surface_pts:
+        return hit[1]
+    tree = _model_tree(surface_pts)
+    sub = surface_pts[:: max(1, len(surface_pts) // 500)]
+    spacing = float(np.median(tree.query(sub, k=2)[0][:, 1])) if len(surface_pts) > 1 else 0.0
+    try:
+        _SPACINGS[key] = (weakref.ref(surface_pts, lambda _r: _SPACINGS.pop(key, None)), spacing)
+    except TypeError:
+        pass
+    return spacing
 
 
 def consistency(
@@ -248,19 +269,38 @@ def consistency(
             # noise along the silhouette edges does not count, a point well inside the
             # footprint does); samples below every such height cannot count
             zq = near[rest, 2]
-            lo = near[rest, :2].min(axis=0) - 0.5 * d
-            hi = near[rest, :2].max(axis=0) + 0.5 * d
-            high = np.flatnonzero(
-                (P[:, 2] > zq.min() + 2 * d) & np.all((P[:, :2] >= lo) & (P[:, :2] <= hi), axis=1)
-            )
+            high = np.flatnonzero(P[:, 2] > zq.min() - d)
             if len(high) >= 2:
-                cols = cKDTree(P[high, :2]).query_ball_point(near[rest, :2], r=0.5 * d)
+                foot = cKDTree(P[high, :2])
+                cols = foot.query_ball_point(near[rest, :2], r=0.5 * d)
                 lens = np.fromiter((len(c) for c in cols), dtype=np.intp, count=len(cols))
                 if lens.sum():
                     flat = np.concatenate([c for c in cols if len(c)]).astype(np.intp)
                     grp = np.repeat(np.arange(len(rest)), lens)
-                    above = P[high[flat], 2] > zq[grp] + 2 * d
-                    below[rest] = np.bincount(grp[above], minlength=len(rest)) >= 2
+                    z = P[high[flat], 2]
+                    above = z > zq[grp] + 2 * d
+                    under = np.bincount(grp[above], minlength=len(rest)) >= 2
+                    # ... unless an oblique sensor sees it under an overhang of a model
+                    # resting on the table: the model's
+                    # lowest surface over it (not below it by more than d) is ``gap`` higher,
+                    # and within ``gap`` of it (a 45 deg line of sight) the footprint of the
+                    # model above it leaves an opening
+                    over = z > zq[grp] - d
+                    low = np.full(len(rest), np.inf)
+                    np.minimum.at(low, grp[over], z[over])
+                    idx_u = np.flatnonzero(under)
+                    # (only a model resting on the table: a pose floating over it would
+                    # otherwise hide the table under itself)
+                    resting = table is not None and float(np.min(table.distance(P))) <= d
+                    if not resting:
+                        below[rest[idx_u]] = True
+                    elif len(idx_u):
+                        gap = np.maximum(low[idx_u] - zq[idx_u], 0.0)
+                        probe = near[rest[idx_u], None, :2] + gap[:, None, None] * _DIRS8[None]
+                        reach = max(0.5 * d, _model_spacing(surface_pts))
+                        dist = foot.query(probe.reshape(-1, 2), distance_upper_bound=reach)[0]
+                        covered = np.isfinite(dist).reshape(len(idx_u), 8).all(axis=1)
+                        below[rest[idx_u[covered]]] = True
         explained_n, inside_n, below_n = int(explained.sum()), int(inside.sum()), int(below.sum())
     bad = inside_n + below_n
     ok = bool(explained_n >= 30 and bad <= 0.05 * max(explained_n, 1) and penetration <= 0.02)
