@@ -23,7 +23,7 @@ if [ "${BENCH_FORCE:-0}" != 1 ] && awk "BEGIN{exit !($load >= 1.0)}"; then
 fi
 
 if [ "$PROFILE" = short ]; then
-  SIM_N=50; FF_TRIALS=2; GRASP_EP=20; OBJ_N=6; BIN_N=4; BACK_EP=12
+  SIM_N=50; FF_TRIALS=4; GRASP_EP=15; OBJ_N=4; BIN_N=4; BACK_EP=12
 else
   SIM_N=100; FF_TRIALS=4; GRASP_EP=100; OBJ_N=50; BIN_N=20; BACK_EP=24
 fi
