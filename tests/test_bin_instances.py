@@ -141,3 +141,14 @@ def test_cli_all_bad_input():
     argv = ["localize", "--object", "part", "--all", "--seed", "1"]
     assert main([*argv, "--count", "13"]) == 2
     assert main([*argv, "--fail", "laser"]) == 2
+
+
+def test_bin_text_reports_name_failed_devices_and_alternates():
+    from mks_sim.cli._bin import _fault_lines
+
+    rec = {"faults": ["range_finder", "wrist_camera"], "fault_reasons": {"wrist_camera": "x"},
+           "warnings": ["Fused_Points ran on alternate Stereo_View"]}
+    assert _fault_lines(rec) == [
+        "fault: range_finder: failed", "fault: wrist_camera: x",
+        "warning: Fused_Points ran on alternate Stereo_View",
+    ]

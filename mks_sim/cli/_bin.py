@@ -57,8 +57,7 @@ def format_all_text(rec: dict[str, Any]) -> str:
     served = ", ".join(f"{k} <- {v}" for k, v in sorted(rec["provenance"].items()))
     lines.append(f"logical sensors: {served}")
     lines.append(f"views: {rec['views']} ({', '.join(rec['view_names'])})")
-    for dev, why in sorted(rec["faults"].items()):
-        lines.append(f"fault: {dev}: {why}")
+    lines += _fault_lines(rec)
     lines.append(f"time: {rec['time_s']:.2f} s")
     return "\n".join(lines)
 
@@ -151,8 +150,7 @@ def format_clear_text(rec: dict[str, Any]) -> str:
             f"  pick {k + 1}: instance {p['instance']} (score {p['score']:.2f}) {what}; "
             f"{p['time_s']:.1f} s ({p['perception_s']:.1f} s perception, {p['views']} view(s))"
         )
-    for dev, why in sorted(rec.get("faults", {}).items()):
-        lines.append(f"fault: {dev}: {why}")
+    lines += _fault_lines(rec)
     return "\n".join(lines)
 
 
@@ -234,3 +232,10 @@ def demo_bin(demo: Any, seed: int, grasp: bool, frame_hook: Any) -> None:
                 renderer.close()
         success = body is not None and in_output_box(world, body)
         row.grasp += "; one pick: " + ("in the box" if success else f"failed ({failure or 'not in the box'})")
+
+
+def _fault_lines(rec: dict[str, Any]) -> list[str]:
+    """The failed devices with their reasons, and the alternates used (``faults``/``warnings``)."""
+    reasons = rec.get("fault_reasons", {})
+    lines = [f"fault: {dev}: {reasons.get(dev, 'failed')}" for dev in rec.get("faults", [])]
+    return lines + [f"warning: {w}" for w in rec.get("warnings", [])]

@@ -19,6 +19,7 @@ import mujoco
 import numpy as np
 
 from mks_sim.errors import SpecError
+from mks_sim.sensing.faults import fault_fields
 from mks_sim.sim.scenes import scene_file, scene_from_doc
 from mks_sim.sim.world import World
 
@@ -227,7 +228,7 @@ def run_localize_all(
         ``{"scene", "object", "seed", "instances": [{"matrix", "score", "visible_fraction",
         "error": {"position_mm", "rotation_deg"}, "correct"}], "found", "present",
         "false_positives", "missed", "provenance", "views", "view_names", "view_log",
-        "faults", "time_s", "timing_s", "failed_devices"}``
+        "faults", "warnings", "fault_reasons", "time_s", "timing_s", "failed_devices"}``
         (``error``, ``visible_fraction``, ``correct``, ``present``, ``false_positives`` and
         ``missed`` are evaluation from ground truth).
     """
@@ -273,7 +274,8 @@ def run_localize_all(
         "views": robot.views,
         "view_names": list(sensed.views),
         "view_log": robot.view_log,
-        "faults": robot.faults,
+        **fault_fields(robot.faults, sensed.provenance),
+        "fault_reasons": dict(robot.faults),
         "time_s": round(robot.perception_s, 4),
         "timing_s": {**{k: round(v, 4) for k, v in sensed.timing.items()},
                      "total": round(robot.perception_s, 4)},
@@ -821,7 +823,10 @@ def clear_bin(
         "picks": [p.to_json() for p in picks],
         "time_s": round(time.perf_counter() - t_start, 3),
         "stopped": stopped,
-        "faults": robot.faults_seen,
+        **fault_fields(
+            robot.faults_seen, robot.sensed.provenance if robot.sensed is not None else {}
+        ),
+        "fault_reasons": dict(robot.faults_seen),
     }
 
 
