@@ -161,11 +161,16 @@ def summarize(res: list[Outcome]) -> tuple[str, str, str, str]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=8)
-    ap.add_argument("--out", default="benchmarks/results/localize.md")
+    ap.add_argument(
+        "--out", default=None, help="report file (default benchmarks/results/localize.md; "
+        "--quick writes to stdout unless --out is given)"
+    )
     ap.add_argument("--quick", action="store_true", help="2 trials per row (a smoke run)")
     args = ap.parse_args(argv)
     if args.quick:
         args.trials = min(args.trials, 2)
+    if args.out is None and not args.quick:
+        args.out = "benchmarks/results/localize.md"
     header = header_lines("python benchmarks/localize.py " + " ".join(sys.argv[1:] if argv is None else argv))
     logging.basicConfig(level=logging.ERROR)
 
@@ -216,7 +221,7 @@ def _spacing(pts: np.ndarray) -> float:
     return float(np.median(cKDTree(pts).query(sub, k=2)[0][:, 1]))
 
 
-def write_report(path: str, rows, trials: int, o3d_note: str, header: list[str]) -> None:
+def write_report(path: str | None, rows, trials: int, o3d_note: str, header: list[str]) -> None:
     lines = [
         "# Localization in one-sided range scans: mks_sim vs Open3D FPFH+RANSAC+ICP",
         "",
@@ -251,6 +256,9 @@ def write_report(path: str, rows, trials: int, o3d_note: str, header: list[str])
         return f"{num}/{den} successes, faster in {faster}/{len(rows)} rows"
 
     lines += ["", f"Totals — ours: {total(4)}; Open3D: {total(5)}.", ""]
+    if path is None:  # --quick without --out: a smoke run leaves the results file alone
+        print("\n".join(lines))
+        return
     with open(path, "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines))
 
