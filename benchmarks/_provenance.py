@@ -20,14 +20,17 @@ IDLE_LOAD = 1.0
 
 
 def commit() -> str:
-    """Short commit hash of the checkout, ``+dirty`` when tracked files differ from it."""
+    """Short commit hash of the checkout, ``+dirty`` when tracked files other than the
+    benchmark results differ from it."""
     try:
         head = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
             check=True,
         ).stdout.strip()
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+            # the results files themselves change with every run: not part of the code
+            ["git", "status", "--porcelain", "--untracked-files=no", "--", ".",
+             ":!benchmarks/results", ":!benchmarks/RESULTS.md"], cwd=ROOT,
             capture_output=True, text=True, check=True,
         ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
