@@ -1,0 +1,38 @@
+"""benchmarks/RESULTS.md is what the benchmark scripts last wrote, with provenance (issue 15)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _collect() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("collect_results", BENCH / "collect_results.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("collect_results", mod)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_results_md_matches_the_sections_and_every_section_has_provenance() -> None:
+    cr = _collect()
+    parts = cr.sections()
+    assert {"spg", "localize", "localize_sim"} <= set(parts)
+    assert cr.problems(parts, (BENCH / "RESULTS.md").read_text()) == []
+
+
+def test_check_reports_a_stale_page_and_a_section_without_provenance() -> None:
+    cr = _collect()
+    parts = dict(cr.sections())
+    page = cr.assemble(parts)
+    parts["spg"] = parts["spg"] + "\n\n| an edited row |"
+    found = cr.problems(parts, page)
+    assert any("differs" in f for f in found)
+    parts = {"x": "# x\n\n| a | b |"}
+    found = cr.problems(parts, cr.assemble(parts))
+    assert any("commit" in f for f in found) and any("load average" in f for f in found)
