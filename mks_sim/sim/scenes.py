@@ -272,15 +272,8 @@ def _pair(v: Any, where: str, key: str) -> tuple[float, float]:
     return float(v[0]), float(v[1])
 
 
-def _vec(v: Any, n: int, where: str, key: str) -> tuple[float, ...]:
-    if (
-        not isinstance(v, list)
-        or len(v) != n
-        or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
-        or not all(math.isfinite(x) for x in v)
-    ):
-        raise SpecError(f"{where}: field {key!r}: expected {n} finite numbers, got {v!r}")
-    return tuple(float(x) for x in v)
+#: n finite numbers from a scene-file field (the one check, shared with the flat parts).
+_vec = flatparts._floats
 
 
 def _table(v: Any, where: str) -> Mapping[str, Any]:
