@@ -8,7 +8,8 @@
 # Each script writes benchmarks/results/<name>.md with its provenance lines (commit, date,
 # load average before that script started, command), so a reader sees what a short profile
 # left out. The run refuses to start while the 1-minute load average is >= 1 (wait for the
-# machine to go idle; BENCH_FORCE=1 runs anyway and each table is then flagged BUSY).
+# machine to go idle; BENCH_FORCE=1 runs anyway and each table is then flagged BUSY). Between
+# scripts it waits (up to 5 minutes) for the previous script's load to fall below 1.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
@@ -28,9 +29,19 @@ else
   SIM_N=100; FF_TRIALS=4; GRASP_EP=100; OBJ_N=50; BIN_N=20; BACK_EP=24
 fi
 
+settle() {  # wait (up to 5 min) for the previous script's load to decay below 1
+  local i=0 l
+  while [ "${BENCH_FORCE:-0}" != 1 ] && [ $i -lt 60 ]; do
+    l=$(cut -d' ' -f1 /proc/loadavg)
+    awk "BEGIN{exit !($l < 1.0)}" && return 0
+    sleep 5; i=$((i + 1))
+  done
+}
+
 run() {  # name, command...
   local name=$1; shift
   case " $ONLY " in *" $name "*) ;; *) return 0 ;; esac
+  settle
   echo "== $name: $* (load $(cut -d' ' -f1-3 /proc/loadavg))" >&2
   local t0=$SECONDS
   "$@"
