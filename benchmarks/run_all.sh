@@ -28,6 +28,9 @@ if [ "$PROFILE" = short ]; then
 else
   SIM_N=100; FF_TRIALS=4; GRASP_EP=100; OBJ_N=50; BIN_N=20; BACK_EP=24
 fi
+# any size can be set alone, e.g. BENCH_OBJ_N=20 BENCH_PROFILE=short benchmarks/run_all.sh
+SIM_N=${BENCH_SIM_N:-$SIM_N}; GRASP_EP=${BENCH_GRASP_EP:-$GRASP_EP}; OBJ_N=${BENCH_OBJ_N:-$OBJ_N}
+BIN_N=${BENCH_BIN_N:-$BIN_N}; BACK_EP=${BENCH_BACK_EP:-$BACK_EP}
 
 settle() {  # wait (up to 5 min) for the previous script's load to decay below 1
   local i=0 l
