@@ -4,8 +4,9 @@
 
 1. **Invoke the model.** The object comes from the model database
    (``mks_sim.models.objects.load_object``: mesh, localization kinds, logical sensor); its
-   default KIND picks the pipeline (``sphere`` or the polyhedral surface of its mesh, plus
-   the ``rotinv`` model it names: the cube's vertexes, the part's control points).
+   default KIND picks the pipeline (``sphere``; ``freeform``, or a mostly curved mesh, for the
+   free-form model it names or one built from its mesh; else the polyhedral surface of its
+   mesh, plus the ``rotinv`` model it names: the cube's vertexes, the part's control points).
 2. **Activate the logical sensors it needs** through a :class:`~mks_sim.sensing.SensorGraph`
    snapshot on the devices: only the model's sensor and its inputs
    (``graph.required([sensor])``) run; a failed device is replaced by the sensor's alternate
@@ -19,7 +20,8 @@
    and vertexes (the table is the face an object rests on).
 5. **Matching**: vertex-frame Hough votes / the rotation-invariant Hough of section 2.2.1 for the
    polyhedral models (cube, industrial part; :mod:`mks_sim.localization.pipeline`); the
-   sphere model picks the ``Sphere_Detector`` rows of its radius.
+   sphere model picks the ``Sphere_Detector`` rows of its radius; a free-form model votes
+   with point-pair keypoints on the object points (:func:`localize_freeform`).
 6. **Refinement**: point-to-plane ICP (cube, part) or a geometric sphere fit to the points
    near the detected sphere, and a scene-consistency check of every candidate (no sensed point
    inside the posed model or seen through it, no penetration of the table) that picks the
@@ -69,6 +71,7 @@ __all__ = [
     "WorkstationLocalization",
     "find_table",
     "localize",
+    "localize_freeform",
     "localize_object",
     "table_z_m",
     "workstation_representation",
@@ -206,6 +209,8 @@ def _resolve_model(
             r = float(np.max(np.linalg.norm(spec.mesh.vertices, axis=1)))
             entry = SphereModel(f"{spec.name}_sphere", r, 0.004)
         return str(getattr(entry, "name", spec.name)), entry, sensor, "database", entry
+    if _is_freeform(spec):
+        return (*_freeform_model(spec, db), spec.sensor, "database", None)
     entry = None
     if "rotinv" in spec.models:
         try:
@@ -214,6 +219,93 @@ def _resolve_model(
             log.info("object %r: %s", obj, exc)
     name = spec.models.get("rotinv", spec.name)
     return name, _surface_model(name, spec.mesh), sensor, "database + object mesh", entry
+
+
+_FREEFORM: dict[int, tuple[Any, Any]] = {}
+
+
+def _is_freeform(spec: Any) -> bool:
+    """The object is localized by its free-form model: its default kind says so, or it names
+    no kind but the polyhedral one while its mesh is mostly curved (``mesh_kind``: the
+    decision of ``localize-cloud --kind auto``; a curved mesh has no corners to vote with)."""
+    if spec.kind == "freeform":
+        return True
+    if spec.kind != "polyhedral" or "rotinv" in spec.models:
+        return False
+    from mks_sim.localization.model import mesh_kind
+
+    return bool(mesh_kind(spec.mesh) == "freeform")
+
+
+def _freeform_model(spec: Any, db: ModelDatabase) -> tuple[str, Any]:
+    """(name, the free-form model): the database entry the object names (its tables, built
+    by ``objects add``), else one built from its mesh once per mesh."""
+    if "freeform" in spec.models:
+        try:
+            entry = spec.model("freeform", db=db)
+            return str(getattr(entry, "name", spec.name)), entry
+        except NotFound as exc:
+            log.info("object %r: %s; building the free-form model from its mesh", spec.name, exc)
+    hit = _FREEFORM.get(id(spec.mesh))
+    if hit is None or hit[0] is not spec.mesh:
+        from mks_sim.localization.model import model_from_mesh
+
+        hit = (spec.mesh, model_from_mesh(spec.mesh, f"{spec.name}_freeform", "freeform")[0])
+        _FREEFORM[id(spec.mesh)] = hit
+    return f"{spec.name}_freeform", hit[1]
+
+
+def localize_freeform(
+    model: Any, rep: Any, rng: np.random.Generator, timing: dict[str, float]
+) -> tuple[list[PoseHypothesis], dict[str, Any]]:
+    """The free-form path over a snapshot's representation: the free-form matcher of
+    ``localize-cloud`` (point-pair keypoint votes, ICP, coverage score;
+    :func:`~mks_sim.localization.pipeline.localize_cloud`) on the object points, the sensed
+    table given, then the scene-consistency check over the whole cloud that the other kinds
+    pass (no sensed point inside the posed model or seen through it, no table penetration).
+
+    Args:
+        model: a :class:`~mks_sim.models.freeform.FreeformModel` (metres).
+        rep: the snapshot's :class:`~mks_sim.localization.representation.Representation`.
+        rng: generator (subsampling, RANSAC).
+        timing: per-stage seconds, filled in (``hypotheses``, ``verification``).
+
+    Returns:
+        (consistent hypotheses best first, diagnostics).
+    """
+    from mks_sim.localization.pipeline import _noise_scale, localize_cloud
+    from mks_sim.localization.verify import consistency, rank
+
+    extra: dict[str, Any] = {}
+    table = rep.table
+    extra["table_z_m"] = None if table is None else float(table.offset / table.normal[2])
+    objects = rep.objects
+    extra["object_points"] = len(objects)
+    timing.setdefault("hypotheses", 0.0)
+    timing.setdefault("verification", 0.0)
+    if len(objects) < 30:
+        return [], extra
+    # the object points only: the table is already found (its plane is passed for the
+    # support face), so the cloud matcher neither searches nor segments it again
+    loc = localize_cloud(model, objects, table="none" if table is None else table, rng=rng)
+    timing["hypotheses"] += loc.timing.get("representation", 0.0) + loc.timing["hypotheses"]
+    timing["verification"] += loc.timing["verification"]
+    extra["candidates"] = len(loc.hypotheses)
+    extra["segments"] = [len(s.indices) for s in loc.segments]
+    t = time.perf_counter()
+    d = _noise_scale(table, rep.spacing)  # the other kinds' inlier distance
+    surface_pts = np.asarray(model.surface_points(), dtype=np.float64)
+    surface_nrm = np.asarray(model.surface_normals(), dtype=np.float64)
+    candidates = list(loc.hypotheses)
+    checks = [
+        consistency(h.matrix, surface_pts, surface_nrm, rep.points, table, d, rep.tree)
+        for h in candidates
+    ]
+    order, good = rank(candidates, checks)
+    timing["verification"] += time.perf_counter() - t
+    extra["inlier_distance_m"] = d
+    extra["checks"] = [checks[i].as_dict() for i in order[:5]]
+    return good, extra
 
 
 # --------------------------------------------------------------------------- the flow
@@ -286,6 +378,8 @@ def localize_object(
     diag["kind"] = kind
     if kind == "sphere":
         hyps, extra = localize_sphere(model, snap, sensor, rep, rng, timing)
+    elif kind == "freeform":
+        hyps, extra = localize_freeform(model, rep, rng, timing)
     else:
         hyps, extra = localize_polyhedral(model, entry, snap, sensor, rep, rng, timing)
     timing["processing"] = time.perf_counter() - t_proc
