@@ -17,7 +17,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import mks_sim  # noqa: F401  (registers the envs)
-from mks_sim.envs.grasp_env import GraspEnv, GraspEnvV1
+from mks_sim.envs.grasp_env import GraspEnv, GraspEnvV1, GraspEnvV2
 
 
 def _truth_localize(world, name):  # env API alone: ground truth stands in for sensing
@@ -37,7 +37,9 @@ def _same(a, b) -> bool:
     return bool(np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True))
 
 
-@pytest.mark.parametrize(("version", "cls"), [("v0", GraspEnv), ("v1", GraspEnvV1)])
+@pytest.mark.parametrize(
+    ("version", "cls"), [("v0", GraspEnv), ("v1", GraspEnvV1), ("v2", GraspEnvV2)]
+)
 def test_registered_both_ways(version: str, cls: type) -> None:
     assert f"mks_sim/Grasp-{version}" in gym.registry
     env = gym.make(f"mks_sim:mks_sim/Grasp-{version}", object="sphere",
@@ -45,7 +47,9 @@ def test_registered_both_ways(version: str, cls: type) -> None:
     try:
         assert type(env.unwrapped) is cls
         assert env.unwrapped.object == "sphere"
-        assert env.unwrapped.continuous_grip is (version == "v1")
+        assert env.unwrapped.continuous_grip is (version != "v0")
+        assert env.unwrapped.rotation_action is (version == "v2")
+        assert env.action_space.shape == ((7,) if version == "v2" else (5,))
     finally:
         env.close()
 
@@ -333,6 +337,97 @@ def test_models_folder_does_not_leak_from_the_wedge_test() -> None:
 
     # Runs after test_any_database_object_with_models_folder (file order): its models folder
     # went into MKS_SIM_MODELS through the env and must be gone again.
-    assert not os.environ.get("MKS_SIM_MODELS", "").strip() or "env_models" not in os.environ[
-        "MKS_SIM_MODELS"
-    ]
+    assert (
+        not os.environ.get("MKS_SIM_MODELS", "").strip()
+        or "env_models" not in os.environ["MKS_SIM_MODELS"]
+    )
+
+
+def _rotation_about(axis, angle: float) -> np.ndarray:
+    """(3, 3) rotation by ``angle`` about unit ``axis`` (Rodrigues; independent of MuJoCo)."""
+    k = np.asarray(axis, dtype=float)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def _angle(R1: np.ndarray, R2: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(R1.T @ R2) - 1) / 2, -1, 1)))
+
+
+@pytest.mark.slow
+def test_v2_rotation_action_turns_the_hand_about_a_world_axis() -> None:
+    """v2's ``(drx, dry, drz)`` turns the hand about a world axis, ``MAX_ROT_RAD`` per step at
+    1: four steps of ``drx = 1`` tilt the hand 0.6 rad about world x (the arm's forward
+    kinematics, read back through the simulator after it settles), the position held."""
+    from mks_sim.envs.grasp_env import MAX_ROT_RAD
+    from mks_sim.sim import names
+
+    env = _make("mks_sim/Grasp-v2", object="cube")
+    try:
+        obs, _ = env.reset(seed=0)
+        assert obs["pinch_rotation"].shape == (3, 3)
+        site = env.unwrapped.world.data.site(names.PINCH_SITE)
+        R0, p0 = site.xmat.reshape(3, 3).copy(), site.xpos.copy()
+        assert np.allclose(obs["pinch_rotation"], R0)
+        for _ in range(4):
+            obs, *_ = env.step(np.array([0, 0, 0, 1, 0, 0, 0], np.float32))
+        for _ in range(15):  # hold: the velocity-limited arm catches up with the target
+            obs, *_ = env.step(np.zeros(7, np.float32))
+        R = site.xmat.reshape(3, 3)
+        expected = _rotation_about((1, 0, 0), 4 * MAX_ROT_RAD) @ R0
+        assert _angle(R, expected) < 0.03, _angle(R, expected)
+        assert _angle(R, R0) > 0.5  # it did turn (not the start pose within tolerance)
+        assert np.linalg.norm(site.xpos - p0) < 0.01
+        assert np.allclose(obs["pinch_rotation"], R)
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+def test_v2_scripted_policy_flies_a_tilted_plan() -> None:
+    """Given a tilted plan (25 degrees off vertical), the v2 policy brings the hand to the
+    plan's whole rotation at the pre-grasp point (simulator forward kinematics), where v1
+    could only match its yaw."""
+    from mks_sim.envs.scripted import ROT_TOL_RAD, ScriptedGraspPolicy
+    from mks_sim.sim import names, truth
+    from mks_sim.tasks.grasp import GraspPlan, down_rotation
+
+    env = _make("mks_sim/Grasp-v2", object="cube", max_episode_steps=150)
+    try:
+        obs, _ = env.reset(seed=1)
+        u = env.unwrapped
+        cube = truth.object_to_world(u.world, "cube")[:3, 3]
+        yaw = float(obs["pinch_yaw"][0]) + 0.4
+        tilt = _rotation_about((np.cos(yaw), np.sin(yaw), 0.0), np.radians(25.0))
+        rotation = tilt @ down_rotation(yaw)
+        plan = GraspPlan(grasp_point_world=tuple(cube), yaw_rad=yaw, width_m=0.05,
+                         approach_height_m=0.08, lift_height_m=0.1,
+                         rotation_world=tuple(map(tuple, rotation)))  # fmt: skip
+        assert plan.tilted
+        policy = ScriptedGraspPolicy(u)
+        policy.plan = plan
+        for _ in range(60):
+            obs, *_ = env.step(policy(obs))
+            if policy.phase != "approach":
+                break
+        assert policy.phase == "descend"
+        site = u.world.data.site(names.PINCH_SITE)
+        assert _angle(site.xmat.reshape(3, 3), rotation) < ROT_TOL_RAD + 0.02
+        assert np.linalg.norm(site.xpos - plan.pregrasp_world) < 0.01
+    finally:
+        env.close()
+
+
+def test_v1_policy_plans_top_down_only() -> None:
+    """v0/v1 cannot tilt the hand: the policy asks the synthesis for top-down grasps only."""
+    from mks_sim.envs.scripted import ScriptedGraspPolicy
+
+    env = _make("mks_sim/Grasp-v1", object="cube")
+    try:
+        obs, _ = env.reset(seed=0)
+        policy = ScriptedGraspPolicy(env.unwrapped)
+        policy(obs)
+        assert policy.plan is not None and not policy.plan.tilted
+        assert not policy.rotates
+    finally:
+        env.close()

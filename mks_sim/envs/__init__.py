@@ -6,23 +6,26 @@ works after it and ``gymnasium.make("mks_sim:mks_sim/Grasp-v1")`` works without 
 - ``mks_sim/Grasp-v0``: binary grip (``action[4] < 0`` opens, ``>= 0`` closes).
 - ``mks_sim/Grasp-v1``: continuous grip (``action[4]`` is the finger velocity, a fraction of
   the actuator range); the scripted policy closes gently until touch, as the full loop does.
+- ``mks_sim/Grasp-v2``: v1 with a full hand rotation per step (a world-frame rotation vector),
+  so the scripted policy flies tilted grasp plans as planned.
 - ``mks_sim/BinPick-v0``: the agent chooses which localized instance of a bin to pick
   (``mks_sim.envs.bin_env``).
 """
 
 from __future__ import annotations
 
-ENV_IDS = ("mks_sim/Grasp-v0", "mks_sim/Grasp-v1")
+ENV_IDS = ("mks_sim/Grasp-v0", "mks_sim/Grasp-v1", "mks_sim/Grasp-v2")
 #: Bin picking (issue 13): an agent picks localized instances into the output box.
 BIN_ENV_ID = "mks_sim/BinPick-v0"
 _ENTRY_POINTS = {
     "mks_sim/Grasp-v0": "mks_sim.envs.grasp_env:GraspEnv",
     "mks_sim/Grasp-v1": "mks_sim.envs.grasp_env:GraspEnvV1",
+    "mks_sim/Grasp-v2": "mks_sim.envs.grasp_env:GraspEnvV2",
 }
 
 
 def register_envs() -> None:
-    """Register ``mks_sim/Grasp-v0`` and ``-v1`` with gymnasium (idempotent)."""
+    """Register ``mks_sim/Grasp-v0``, ``-v1`` and ``-v2`` with gymnasium (idempotent)."""
     import gymnasium
 
     for env_id, entry_point in _ENTRY_POINTS.items():

@@ -40,7 +40,7 @@ from gymnasium import spaces
 from mks_sim.errors import MksError, NotFound
 from mks_sim.sim import names
 from mks_sim.sim.ik import SiteIK
-from mks_sim.tasks.controller import ArmHandController, RobotNames, quat_down
+from mks_sim.tasks.controller import ArmHandController, RobotNames, quat_down, quat_of
 from mks_sim.tasks.episode import (
     EpisodeAssembly,
     LocalizeFn,
@@ -52,6 +52,7 @@ from mks_sim.tasks.spec import task_for_object
 
 MAX_STEP_M = 0.02  # pinch-point motion per step at |action| = 1
 MAX_YAW_RAD = 0.15
+MAX_ROT_RAD = 0.15  # Grasp-v2: hand rotation per step at |rotation action| = 1
 CONTROL_PERIODS_PER_STEP = 5  # 5 x 20 ms = 0.1 s of simulated time per env step
 # A step moves the target <= 2 cm and 0.15 rad from the last solution: DLS converges in 2-3
 # iterations (measured); 20 leaves room for the reachable-set boundary.
@@ -133,7 +134,9 @@ class GraspEnv(gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
-    continuous_grip = False  # what action[4] means (read by the scripted policy)
+    continuous_grip = False  # what the grip action means (read by the scripted policy)
+    rotation_action = False  # v2: a full hand rotation per step instead of a yaw only
+    action_names: tuple[str, ...] = ("dx", "dy", "dz", "dyaw", "grip")
 
     def __init__(
         self,
@@ -226,7 +229,7 @@ class GraspEnv(gym.Env):
         self.observation_space = spaces.Dict(obs)
         self._obs_keys = frozenset(obs)
         # dx, dy, dz, dyaw (scaled by MAX_STEP_M / MAX_YAW_RAD), grip (< 0 open, >= 0 close).
-        self.action_space = spaces.Box(-1.0, 1.0, (5,), np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (len(self.action_names),), np.float32)
 
         self._estimate: np.ndarray | None = None
         self._target = np.zeros(3)
@@ -309,19 +312,20 @@ class GraspEnv(gym.Env):
     def step(self, action: np.ndarray) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
         if self._ctl is None:
             raise MksError("GraspEnv.step() before reset()")
-        a = _checked_action(action)  # before any state changes: a bad action changes nothing
+        # Before any state changes: a bad action changes nothing.
+        a = _checked_action(action, self.action_names)
         ctl = self._ctl
         self._target = self._target + a[:3] * MAX_STEP_M
         self._target[2] = max(self._target[2], names.TABLE_TOP_Z + 0.01)
-        self._yaw = float((self._yaw + a[3] * MAX_YAW_RAD + math.pi) % (2 * math.pi) - math.pi)
+        quat = self._turn(a[3:-1])
         # Warm-started at the last commanded joints: the commanded path stays continuous
         # (no unlimited joint jumps a turn) and DLS needs 2-3 iterations.
-        res = self._ik.solve(self.world.data.qpos, self._target, quat_down(self._yaw),
+        res = self._ik.solve(self.world.data.qpos, self._target, quat,
                              q_init=ctl.q_target, max_iters=IK_MAX_ITERS)  # fmt: skip
         ctl.q_target = res.qpos  # limited joints clamped: the reachable point nearest the target
         if not res.converged:  # out of reach: the target follows what the arm can reach
             self._target = res.site_pos
-        ctl.grip = self._grip(float(a[4]))
+        ctl.grip = self._grip(float(a[-1]))
         ctl.step(CONTROL_PERIODS_PER_STEP)
         self._steps += 1
         if self.resense_every and self._steps % self.resense_every == 0:
@@ -364,6 +368,14 @@ class GraspEnv(gym.Env):
         _OPEN_ENVS.discard(self)
 
     # --- internals ------------------------------------------------------------------------
+    def _turn(self, rotation_action: np.ndarray) -> np.ndarray:
+        """The hand's new target orientation (4,) wxyz for the action's rotation part (v0/v1:
+        ``(dyaw,)``, the hand kept pointing down)."""
+        self._yaw = float(
+            (self._yaw + rotation_action[0] * MAX_YAW_RAD + math.pi) % (2 * math.pi) - math.pi
+        )
+        return quat_down(self._yaw)
+
     def _grip(self, command: float) -> float:
         """The controller's grip (-1 open .. +1 close at full finger speed) for ``action[4]``."""
         return 1.0 if command >= 0 else -1.0
@@ -501,15 +513,68 @@ class GraspEnvV1(GraspEnv):
         return points.copy(), count.copy()
 
 
-def _checked_action(action: Any) -> np.ndarray:
-    """(5,) float action clipped to [-1, 1]; ValueError for a wrong shape or NaN / Inf."""
+class GraspEnvV2(GraspEnvV1):
+    """``mks_sim/Grasp-v2``: v1 with a full hand rotation per step, so tilted grasps can be
+    flown.
+
+    ``action`` is ``(dx, dy, dz, drx, dry, drz, grip)``: the pinch-point motion as in v0
+    (``MAX_STEP_M`` at 1), a rotation vector in the world frame turning the hand's target
+    orientation (``MAX_ROT_RAD`` per component at 1; ``R_target <- exp(dr) R_target``), and
+    v1's continuous grip. ``obs["pinch_rotation"]`` is the pinch site's (3, 3) rotation in
+    the world (columns: closing axis, across, approach; the robot's own forward
+    kinematics). Everything else is as in :class:`GraspEnvV1`.
+
+    v0 and v1 keep the hand pointing down (``dyaw`` only): a grasp synthesised with a tilted
+    approach (``GraspPlan.tilted``) cannot be flown there.
+    """
+
+    rotation_action = True
+    action_names = ("dx", "dy", "dz", "drx", "dry", "drz", "grip")
+
+    def __init__(self, object: str = "cube", **kwargs: Any) -> None:
+        self._quat = np.array([1.0, 0.0, 0.0, 0.0])  # commanded hand orientation, wxyz
+        super().__init__(object=object, **kwargs)
+        assert isinstance(self.observation_space, spaces.Dict)
+        spaces_ = dict(self.observation_space.spaces)
+        spaces_["pinch_rotation"] = spaces.Box(-1.0, 1.0, (3, 3), np.float64)
+        self.observation_space = spaces.Dict(spaces_)
+        self._obs_keys = frozenset(spaces_)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, Any], dict[str, Any]]:
+        obs, info = super().reset(seed=seed, options=options)
+        assert self._ctl is not None
+        self._quat = quat_of(self._ctl.pinch_rotation())
+        return obs, info
+
+    def _turn(self, rotation_action: np.ndarray) -> np.ndarray:
+        turn = np.array([1.0, 0.0, 0.0, 0.0])  # becomes exp(dr): identity integrated by dr
+        mujoco.mju_quatIntegrate(turn, np.asarray(rotation_action, dtype=float), MAX_ROT_RAD)
+        quat = np.empty(4)
+        mujoco.mju_mulQuat(quat, turn, self._quat)  # world-frame turn: exp(dr) * q
+        mujoco.mju_normalize4(quat)
+        self._quat = quat
+        return quat.copy()
+
+    def _observation(self) -> dict[str, Any]:
+        obs = super()._observation()
+        assert self._ctl is not None
+        obs["pinch_rotation"] = np.clip(self._ctl.pinch_rotation(), -1.0, 1.0)
+        return obs
+
+
+def _checked_action(action: Any, fields: tuple[str, ...]) -> np.ndarray:
+    """(len(fields),) float action clipped to [-1, 1]; ValueError for a wrong shape or
+    NaN / Inf."""
     a = np.asarray(action, dtype=float)
-    if a.size != 5:
-        raise ValueError(f"action: expected 5 numbers (dx, dy, dz, dyaw, grip), got {a.shape}")
-    a = a.reshape(5)
+    n, named = len(fields), ", ".join(fields)
+    if a.size != n:
+        raise ValueError(f"action: expected {n} numbers ({named}), got {a.shape}")
+    a = a.reshape(n)
     if not np.all(np.isfinite(a)):
         raise ValueError(
-            f"action: expected finite numbers (dx, dy, dz, dyaw, grip), got {a.tolist()}; "
+            f"action: expected finite numbers ({named}), got {a.tolist()}; "
             "the step was not taken and the env is unchanged"
         )
     return np.clip(a, -1.0, 1.0)
