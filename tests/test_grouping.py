@@ -272,7 +272,7 @@ def test_compiled_region_growing_matches_numpy_loop() -> None:
 
     from mks_sim.lowlevel import _gridknn
     from mks_sim.lowlevel._regions_kernels import grow_regions
-    from mks_sim.lowlevel.regions import _grow_numpy
+    from mks_sim.lowlevel.regions import _grow
 
     if not _gridknn.available():
         pytest.skip("numba not importable")
@@ -286,7 +286,7 @@ def test_compiled_region_growing_matches_numpy_loop() -> None:
     order = np.argsort(sn.curvature, kind="stable")
     for allowed in (curvature_code(sn.curvature) < 0, np.ones(len(pts), dtype=bool)):
         args = (sn.normals, allowed, order, float(np.cos(np.radians(12.0))), 0.2)
-        want, n_want = _grow_numpy(adj, pts, *args)
+        want, n_want = _grow(adj, pts, *args, compiled=False)
         got, n_got = grow_regions(
             adj.indptr.astype(np.int64), adj.indices.astype(np.int64), pts, *args
         )

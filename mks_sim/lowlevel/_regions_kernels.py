@@ -1,14 +1,53 @@
-"""The compiled region growing of :func:`mks_sim.lowlevel.regions.grow_planar_regions`.
+"""The compiled region growing of :func:`mks_sim.lowlevel.regions.grow_planar_regions` and the
+multi-ring neighbourhood moments of :mod:`mks_sim.lowlevel.normals`.
 
-Imported only when numba is used (``regions._grow`` falls back to the pure-numpy loop
-:func:`mks_sim.lowlevel.regions._grow_numpy`, which the tests compare it with). Module-level,
-``cache=True``: the first use on a machine compiles (seconds), later processes load it.
+Imported only when numba is used (``regions._grow(..., compiled=False)`` is the numpy loop
+the tests compare the kernel with). Module-level, ``cache=True``: the first use on a machine
+compiles (seconds), later processes load the machine code from ``__pycache__``.
 """
 
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
+
+
+@nb.njit(cache=True)
+def _scatter(
+    points: np.ndarray, sel: np.ndarray, count: int
+) -> tuple[float, float, float, float, float, float, float, float, float]:  # pragma: no cover
+    """Centroid (3 values) and scatter matrix (upper triangle xx xy xz yy yz zz, sums of
+    squared deviations, not divided) of ``points[sel[:count]]``, in two passes (the
+    moments do not cancel catastrophically)."""
+    m0 = 0.0
+    m1 = 0.0
+    m2 = 0.0
+    for k in range(count):
+        q = sel[k]
+        m0 += points[q, 0]
+        m1 += points[q, 1]
+        m2 += points[q, 2]
+    m0 /= count
+    m1 /= count
+    m2 /= count
+    a00 = 0.0
+    a01 = 0.0
+    a02 = 0.0
+    a11 = 0.0
+    a12 = 0.0
+    a22 = 0.0
+    for k in range(count):
+        q = sel[k]
+        d0 = points[q, 0] - m0
+        d1 = points[q, 1] - m1
+        d2 = points[q, 2] - m2
+        a00 += d0 * d0
+        a01 += d0 * d1
+        a02 += d0 * d2
+        a11 += d1 * d1
+        a12 += d1 * d2
+        a22 += d2 * d2
+    return m0, m1, m2, a00, a01, a02, a11, a12, a22
 
 
 @nb.njit(cache=True)
@@ -22,7 +61,7 @@ def grow_regions(
     cos_tol: float,
     distance: float,
 ) -> tuple[np.ndarray, int]:  # pragma: no cover - compiled
-    """Breadth-first planar region growing from the seeds in ``order`` (see ``_grow_numpy``).
+    """Breadth-first planar region growing from the seeds in ``order`` (see ``regions._grow``).
 
     Returns:
         ``(labels, count)``: (N,) region of each point in seed order (-1: none), regions.
@@ -77,32 +116,8 @@ def grow_regions(
             nf = nn
             if nn > 0 and size >= refit_at:
                 # the least-squares plane of the members: centroid, smallest principal axis
-                c0 = 0.0
-                c1 = 0.0
-                c2 = 0.0
-                for k in range(size):
-                    j = members[k]
-                    c0 += points[j, 0]
-                    c1 += points[j, 1]
-                    c2 += points[j, 2]
-                c0 /= size
-                c1 /= size
-                c2 /= size
-                cov = np.zeros((3, 3))
-                for k in range(size):
-                    j = members[k]
-                    d0 = points[j, 0] - c0
-                    d1 = points[j, 1] - c1
-                    d2 = points[j, 2] - c2
-                    cov[0, 0] += d0 * d0
-                    cov[0, 1] += d0 * d1
-                    cov[0, 2] += d0 * d2
-                    cov[1, 1] += d1 * d1
-                    cov[1, 2] += d1 * d2
-                    cov[2, 2] += d2 * d2
-                cov[1, 0] = cov[0, 1]
-                cov[2, 0] = cov[0, 2]
-                cov[2, 1] = cov[1, 2]
+                c0, c1, c2, a00, a01, a02, a11, a12, a22 = _scatter(points, members, size)
+                cov = np.array([[a00, a01, a02], [a01, a11, a12], [a02, a12, a22]])
                 _, vec = np.linalg.eigh(cov)
                 n0, n1, n2 = vec[0, 0], vec[1, 0], vec[2, 0]
                 o0, o1, o2 = c0, c1, c2
@@ -138,34 +153,7 @@ def ring_moments(
                         ring[hi] = q
                         hi += 1
             lo = end
-        s0 = 0.0
-        s1 = 0.0
-        s2 = 0.0
-        for k in range(hi):
-            q = ring[k]
-            s0 += c[q, 0]
-            s1 += c[q, 1]
-            s2 += c[q, 2]
-        m0 = s0 / hi
-        m1 = s1 / hi
-        m2 = s2 / hi
-        a00 = 0.0
-        a01 = 0.0
-        a02 = 0.0
-        a11 = 0.0
-        a12 = 0.0
-        a22 = 0.0
-        for k in range(hi):
-            q = ring[k]
-            d0 = c[q, 0] - m0
-            d1 = c[q, 1] - m1
-            d2 = c[q, 2] - m2
-            a00 += d0 * d0
-            a01 += d0 * d1
-            a02 += d0 * d2
-            a11 += d1 * d1
-            a12 += d1 * d2
-            a22 += d2 * d2
+        _, _, _, a00, a01, a02, a11, a12, a22 = _scatter(c, ring, hi)
         out[i, 0] = a00 / hi
         out[i, 1] = a01 / hi
         out[i, 2] = a02 / hi

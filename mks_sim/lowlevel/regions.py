@@ -333,15 +333,28 @@ def _grow(
     order: IntArray,
     cos_tol: float,
     distance: float,
+    *,
+    compiled: bool | None = None,
 ) -> tuple[IntArray, int]:
-    """Region labels in seed order and their count: the compiled kernel when numba imports
-    (:mod:`mks_sim.lowlevel._regions_kernels`), else :func:`_grow_numpy` (same regions)."""
+    """Region labels in seed order and their count.
+
+    A seed's region takes, level by level (breadth first), the unlabelled neighbours whose
+    normal is within ``cos_tol`` of the region's plane normal and which lie within
+    ``distance`` of the plane; the plane is refitted each time the region doubles.
+
+    ``compiled``: True runs the numba kernel
+    (:func:`mks_sim.lowlevel._regions_kernels.grow_regions`), False the numpy loop below
+    (the reference the tests compare the kernel with; same regions), None the kernel from
+    ``_COMPILED_MIN_POINTS`` points when numba imports.
+    """
     from mks_sim.lowlevel import _gridknn
 
-    if len(points) >= _COMPILED_MIN_POINTS and _gridknn.available():
+    if compiled is None:
+        compiled = len(points) >= _COMPILED_MIN_POINTS and _gridknn.available()
+    if compiled:
         from mks_sim.lowlevel._regions_kernels import grow_regions
 
-        labels, count = grow_regions(
+        grown, count = grow_regions(
             adj.indptr.astype(np.int64),
             adj.indices.astype(np.int64),
             np.ascontiguousarray(points, dtype=np.float64),
@@ -351,23 +364,7 @@ def _grow(
             cos_tol,
             distance,
         )
-        return np.asarray(labels, dtype=np.intp), int(count)
-    return _grow_numpy(adj, points, normals, seeds_allowed, order, cos_tol, distance)
-
-
-def _grow_numpy(
-    adj: sparse.csr_array,
-    points: FloatArray,
-    normals: FloatArray,
-    seeds_allowed: NDArray[np.bool_],
-    order: IntArray,
-    cos_tol: float,
-    distance: float,
-) -> tuple[IntArray, int]:
-    """The region growing in numpy (one breadth-first level per step; the reference of the
-    compiled kernel): a seed's region takes, level by level, the unlabelled neighbours whose
-    normal is within ``cos_tol`` of the region's plane normal and which lie within
-    ``distance`` of the plane; the plane is refitted each time the region doubles."""
+        return np.asarray(grown, dtype=np.intp), int(count)
     labels = np.full(len(points), -1, dtype=np.intp)
     rid = 0
     for seed in order:
