@@ -21,7 +21,10 @@ def _miss_first(index, plan):
 def test_a_failed_pick_is_reported_and_the_loop_goes_on():
     rec = run_clear_bin(0, count=1, budget=2, perturb=_miss_first)
     first, *rest = rec["picks"]
-    assert first["success"] is False and first["failure"] in ("no two-sided contact", "closed on nothing")
+    assert first["success"] is False and first["failure"] in (
+        "no two-sided contact",
+        "closed on nothing",
+    )
     assert rest, rec  # the loop went on after the failure
     assert rest[0]["success"] is True, rec
     assert rec["picked"] == 1 and rec["cleared_fraction"] == 1.0
@@ -70,3 +73,63 @@ def test_an_instance_with_another_resting_on_it_is_covered():
     assert covered_points(sensed, 0, obj) > COVERED_POINTS  # the third lies on it
     assert covered_points(sensed, 1, obj) == 0  # beside, level with it
     assert covered_points(sensed, 2, obj) == 0  # on top
+
+
+class _FakeHand:
+    """A hand that goes where it is told (the moves in order), holding its rotation."""
+
+    def __init__(self, pos, R):
+        import numpy as np
+
+        self.pos, self.R, self.path = np.asarray(pos, float), np.asarray(R, float), []
+
+    def pinch_pos(self):
+        return self.pos.copy()
+
+    def pinch_rotation(self):
+        return self.R.copy()
+
+    def pinch_yaw(self):
+        import math
+
+        return math.atan2(self.R[1, 0], self.R[0, 0])
+
+    def move_to(self, pos, yaw, spacing_m=0.01, rotation=None):
+        import numpy as np
+
+        self.pos = np.asarray(pos, dtype=float).copy()
+        self.path.append(self.pos.copy())
+        return True
+
+    def touch(self):
+        import numpy as np
+
+        return np.ones(3)
+
+
+@pytest.mark.parametrize("hang_m", [0.01, 0.09])
+def test_a_held_part_is_lowered_into_the_box_middle_first(hang_m):
+    """A 100 x 60 x 30 mm box held off-centre, hanging ``hang_m`` below the pinch point, is
+    carried over the walls and let go just above the box floor with its middle over the box
+    centre (brute force over its corners)."""
+    import itertools
+
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+
+    table_z = 0.5
+    corners = np.array(list(itertools.product((-0.05, 0.05), (-0.03, 0.03), (0.0, 0.03))))
+    corners_pinch = corners + np.array([0.02, -0.01, -hang_m])  # the part in the pinch frame
+    from mks_sim.tasks.grasp import down_rotation
+
+    R = down_rotation(0.7)
+    hand = _FakeHand([0.05, -0.02, table_z + 0.16], R)
+    assert binmod._carry_to_box(hand, corners_pinch, table_z, None, 0.1) == ""
+    W = corners_pinch @ R.T + hand.pos
+    assert np.allclose(0.5 * (W[:, :2].min(0) + W[:, :2].max(0)), binmod.OUTPUT_BOX_XY)
+    lowest = min(W[:, 2].min(), hand.pos[2] - binmod.TIPS_BELOW_PINCH_M)
+    assert lowest == pytest.approx(table_z + binmod.RELEASE_GAP_M)
+    for p in hand.path[:-1]:  # the carry, before the last move down into the box
+        low = min((corners_pinch @ R.T + p)[:, 2].min(), p[2] - binmod.TIPS_BELOW_PINCH_M)
+        assert low >= table_z + binmod.BIN_WALL_M + binmod.CARRY_MARGIN_M - 1e-9

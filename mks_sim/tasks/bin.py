@@ -290,6 +290,18 @@ def run_localize_all(
 OUTPUT_BOX_XY = (-0.264, 0.22)
 OUTPUT_BOX_HALF_M = 0.07
 RELEASE_HEIGHT_M = 0.14
+#: The box's walls are this high (worlds/bin.toml: 30 mm), the bin's 40 mm: a carried part's
+#: lowest point keeps ``CARRY_MARGIN_M`` above the higher of them on the way.
+BOX_WALL_M = 0.03
+BIN_WALL_M = 0.04
+CARRY_MARGIN_M = 0.02
+#: A held part is lowered into the box until its lowest point (predicted from the estimate
+#: it was grasped at, carried by the hand) is this high above the box's floor, then let go:
+#: dropped from RELEASE_HEIGHT_M, a 100 mm part bounced out of the 30 mm box (tuning bins).
+RELEASE_GAP_M = 0.02
+#: The fingertips reach this far below the pinch point (pad centre 8 mm below, 7 mm half
+#: height, grasp.PAD_CENTRE_BELOW_M): they too keep the gap.
+TIPS_BELOW_PINCH_M = 0.018
 #: A failed pick within this distance of an instance's estimate puts that instance last.
 FAILED_NEAR_M = 0.015
 #: Fingers closed beyond this (rad; 1.35 = fully closed) hold nothing: the narrowest grasp the
@@ -507,7 +519,7 @@ class BinPicker:
                 self.view_log.append({"reason": why, "taken": False, "why_not": why_not})
                 break
             before = self.sensed
-            self.sensed = self._localize(held)
+            self.sensed = self._localize(held, before)
             self.view_log.append(
                 {"reason": why, "taken": True, "viewpoint": [round(float(v), 4) for v in moved],
                  "points_before": len(before.points), "points_after": len(self.sensed.points)}
@@ -538,13 +550,16 @@ class BinPicker:
     def _held_views(held: dict[str, Any]) -> int:
         return sum(len(h.readings) for h in held.values())
 
-    def _localize(self, held: dict[str, Any]) -> Any:
+    def _localize(self, held: dict[str, Any], before: Any = None) -> Any:
+        """Localize every instance in the held views; the instances of the sensing
+        ``before`` (fewer views) are checked first and kept when the fused views agree."""
         from mks_sim.localization.instances import localize_instances
 
+        prior = [i.matrix for i in before.instances.instances] if before is not None else []
         # the held views stand for their devices; the others serve the sensor's alternates
         return localize_instances(
             {**self.devices, **held}, self.name, roi=self.roi, graph=self.graph, rng=self.rng,
-            models=self.models, sensor=VIEWS_SENSOR,
+            models=self.models, sensor=VIEWS_SENSOR, prior=prior,
         )  # fmt: skip
 
     def _needs_view(self, *, scanned: bool = True) -> str:
@@ -662,23 +677,51 @@ class BinPicker:
         return cands
 
     def pick(
-        self, cands: Sequence[Any], index: int = 0, perturb: PlanPerturbation | None = None
+        self,
+        cands: Sequence[Any],
+        index: int = 0,
+        perturb: PlanPerturbation | None = None,
+        *,
+        instance: int | None = None,
     ) -> tuple[bool, str]:
-        """Reach, close, lift out, drop in the output box, go home. Returns (believed
-        success from touch, failure reason)."""
+        """Reach, close, lift out, lower into the output box, let go, go home. Returns
+        (believed success from touch, failure reason).
+
+        Args:
+            cands: grasp candidates of the instance (:meth:`grasps`), best first.
+            index: the pick's number (passed to ``perturb``).
+            perturb: ``(index, GraspPlan) -> GraspPlan`` applied before execution (tests).
+            instance: the instance the candidates grasp (score order of the last sensing;
+                default the one :meth:`grasps` planned last): its estimate, carried by the
+                hand, says how low the held part hangs and where its middle is, so that it
+                is lowered into the box instead of dropped.
+        """
         from mks_sim.tasks.episode import TOUCH_THRESHOLD_N
         from mks_sim.tasks.grasp import down_rotation
 
         ctl = self.ctl
-        ok, failure = _pick(
+        if instance is None and self._grasp_memo is not None and self._grasp_memo[0] is self.sensed:
+            instance = self._grasp_memo[1]
+        ok, failure, pinch_to_world = _pick(
             ctl, cands, self.action, index, perturb, self.table_z, TOUCH_THRESHOLD_N
         )
-        self.last_tilt_deg = float(np.degrees(np.arccos(np.clip(-ctl.pinch_rotation()[2, 2], -1, 1))))
+        self.last_tilt_deg = float(
+            np.degrees(np.arccos(np.clip(-ctl.pinch_rotation()[2, 2], -1, 1)))
+        )
         # a tilted hand keeps its orientation until it has let go, then turns back to the
         # top-down home on the way there
         tilted = float(ctl.pinch_rotation()[2, 2]) > -0.999
         keep = ctl.pinch_rotation() if tilted else None
-        if ok:
+        if ok and pinch_to_world is not None and instance is not None:
+            T = self.sensed.instances.instances[instance].matrix
+            V = np.asarray(self.obj.mesh.vertices, dtype=float)
+            part_to_pinch = np.linalg.inv(pinch_to_world) @ T
+            failure = _carry_to_box(
+                ctl, V @ part_to_pinch[:3, :3].T + part_to_pinch[:3, 3], self.table_z, keep,
+                TOUCH_THRESHOLD_N,
+            )  # fmt: skip
+            ok = not failure
+        elif ok:
             box = np.array([*OUTPUT_BOX_XY, self.table_z + RELEASE_HEIGHT_M])
             ctl.move_to(box, ctl.pinch_yaw(), spacing_m=0.03, rotation=keep)
         ctl.open(50)  # the part falls free before the hand moves (15 periods dragged it out)
@@ -794,7 +837,7 @@ def clear_bin(
         i, cands = chosen
         T = found[i].matrix
         body = robot.body_of(T)  # evaluation only (the report)
-        ok, failure = robot.pick(cands, len(picks), perturb)
+        ok, failure = robot.pick(cands, len(picks), perturb, instance=i)
         success = body is not None and in_output_box(world, body)
         if ok and not success:
             failure = "not in the box"
@@ -905,9 +948,9 @@ def _pick(
     perturb: PlanPerturbation | None,
     table_z: float,
     touch_n: float,
-) -> tuple[bool, str]:
+) -> tuple[bool, str, np.ndarray | None]:
     """Reach, close and lift with the first reachable candidate. Returns (believed held,
-    failure reason)."""
+    failure reason, (4, 4) pinch-to-world where the hand closed when held, else None)."""
     plan = None
     no_ik = blocked = 0
     for cand in _to_try(cands):
@@ -925,22 +968,67 @@ def _pick(
         blocked += 1
         ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.02, rotation=rot)
     if plan is None:
-        return False, f"unreachable ({no_ik} pre-grasp, {blocked} descent blocked)"
+        return False, f"unreachable ({no_ik} pre-grasp, {blocked} descent blocked)", None
     rot = plan.target_rotation
     closed = ctl.close(threshold=touch_n, yaw=plan.yaw_rad, rotation=rot)
     a, b = closed.sides(touch_n)
     if not (a and b):
-        return False, "no two-sided contact"
+        return False, "no two-sided contact", None
     if float(np.min(closed.finger_qpos)) > EMPTY_HAND_Q:
         # the pads touch each other: the hand closed on nothing
-        return False, "closed on nothing"
+        return False, "closed on nothing", None
+    pinch_to_world = np.eye(4)  # where the hand closed (after any re-centring)
+    pinch_to_world[:3, :3], pinch_to_world[:3, 3] = ctl.pinch_rotation(), ctl.pinch_pos()
     up = np.asarray(plan.grasp_point_world, dtype=float).copy()
     up[2] = table_z + CLEARANCE_ABOVE_M
     ctl.move_to(up, plan.yaw_rad, spacing_m=0.01, rotation=rot)
+    if not _held(ctl, touch_n):
+        return False, "slipped", None
+    return True, "", pinch_to_world
+
+
+def _held(ctl: Any, touch_n: float) -> bool:
+    """Finger 1 and finger 2 or 3 touch (a failed pad reads nan: no touch)."""
     t = np.nan_to_num(ctl.touch(), nan=-1.0)
-    if not (t[0] > touch_n and max(t[1], t[2]) > touch_n):
-        return False, "slipped"
-    return True, ""
+    return bool(t[0] > touch_n and max(t[1], t[2]) > touch_n)
+
+
+def _carry_to_box(
+    ctl: Any,
+    part_pinch: np.ndarray,
+    table_z: float,
+    rotation: np.ndarray | None,
+    touch_n: float,
+) -> str:
+    """Carry the held part over the output box and lower it in; "" or why not.
+
+    Args:
+        ctl: the arm and hand, holding the part.
+        part_pinch: (N, 3) the part's model vertices in the pinch frame (its estimate at the
+            grasp, carried by the hand: the robot's belief, no ground truth), metres.
+        table_z: the table top (the box's floor), metres.
+        rotation: the hand's rotation to keep (a tilted grasp), or None (top-down, its yaw).
+        touch_n: the pads' contact threshold, N.
+
+    The part's middle goes over the box's centre with its lowest point (or the fingertips')
+    ``CARRY_MARGIN_M`` above the walls on the way, then down to ``RELEASE_GAP_M`` above the
+    floor (above the rim when its footprint would not fit between the walls).
+    """
+    pos, yaw = ctl.pinch_pos(), ctl.pinch_yaw()
+    R = ctl.pinch_rotation()
+    W = part_pinch @ R.T + pos  # (N, 3) the part as carried
+    below = max(pos[2] - float(W[:, 2].min()), TIPS_BELOW_PINCH_M)
+    lo, hi = W[:, :2].min(axis=0), W[:, :2].max(axis=0)
+    middle_off = 0.5 * (lo + hi) - pos[:2]
+    fits = bool(np.all(0.5 * (hi - lo) < OUTPUT_BOX_HALF_M - 0.01))
+    travel_z = max(pos[2], table_z + max(BIN_WALL_M, BOX_WALL_M) + CARRY_MARGIN_M + below)
+    release_z = table_z + (0.0 if fits else BOX_WALL_M) + RELEASE_GAP_M + below
+    over = np.array([*(np.asarray(OUTPUT_BOX_XY) - middle_off), travel_z])
+    if travel_z > pos[2] + 0.005:
+        ctl.move_to(np.array([pos[0], pos[1], travel_z]), yaw, spacing_m=0.01, rotation=rotation)
+    ctl.move_to(over, yaw, spacing_m=0.02, rotation=rotation)
+    ctl.move_to(np.array([over[0], over[1], release_z]), yaw, spacing_m=0.01, rotation=rotation)
+    return "" if _held(ctl, touch_n) else "dropped while carried"
 
 
 def run_clear_bin(
