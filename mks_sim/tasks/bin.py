@@ -519,7 +519,7 @@ class BinPicker:
                 self.view_log.append({"reason": why, "taken": False, "why_not": why_not})
                 break
             before = self.sensed
-            self.sensed = self._localize(held, before)
+            self.sensed = self._localize(held)
             self.view_log.append(
                 {"reason": why, "taken": True, "viewpoint": [round(float(v), 4) for v in moved],
                  "points_before": len(before.points), "points_after": len(self.sensed.points)}
@@ -550,16 +550,13 @@ class BinPicker:
     def _held_views(held: dict[str, Any]) -> int:
         return sum(len(h.readings) for h in held.values())
 
-    def _localize(self, held: dict[str, Any], before: Any = None) -> Any:
-        """Localize every instance in the held views; the instances of the sensing
-        ``before`` (fewer views) are checked first and kept when the fused views agree."""
+    def _localize(self, held: dict[str, Any]) -> Any:
         from mks_sim.localization.instances import localize_instances
 
-        prior = [i.matrix for i in before.instances.instances] if before is not None else []
         # the held views stand for their devices; the others serve the sensor's alternates
         return localize_instances(
             {**self.devices, **held}, self.name, roi=self.roi, graph=self.graph, rng=self.rng,
-            models=self.models, sensor=VIEWS_SENSOR, prior=prior,
+            models=self.models, sensor=VIEWS_SENSOR,
         )  # fmt: skip
 
     def _needs_view(self, *, scanned: bool = True) -> str:
