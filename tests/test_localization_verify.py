@@ -29,7 +29,7 @@ def _brute(T, pts, nrm, cloud, table, d):  # noqa: ANN001, ANN202
     for q in near:
         dd = np.linalg.norm(P - q, axis=1)
         j = int(np.argmin(dd))
-        if not (np.min(dd[seen]) <= d or (dd[j] > d and (q - P[j]) @ N[j] < -d)):
+        if not (np.min(dd[seen]) <= d or dd[j] <= d or (q - P[j]) @ N[j] < -d):
             rest_z.append(q[2])
     cloud_zmin = min(rest_z) if rest_z else 0.0
     for q in near:
@@ -41,21 +41,25 @@ def _brute(T, pts, nrm, cloud, table, d):  # noqa: ANN001, ANN202
         if dd[j] > d and (q - P[j]) @ N[j] < -d:
             inside += 1
             continue
+        if dd[j] <= d:  # on the surface (turned from the sensors): not seen through it
+            continue
         col = np.linalg.norm(P[:, :2] - q[:2], axis=1) <= 0.5 * d
         if np.count_nonzero(col & (P[:, 2] > q[2] + 2 * d)) < 2:
             continue
         # seen by an oblique (45 deg) sensor when, within the height of the lowest model
         # surface over it, some horizontal direction leaves the footprint of the model above
+        # or the model there does not reach down to that line of sight
         if np.min(table.distance(P)) > d:  # not resting on the table: no overhang to see under
             below += 1
             continue
         gap = max(P[col & (P[:, 2] > q[2] - d), 2].min() - q[2], 0.0)
-        foot = P[P[:, 2] > cloud_zmin - d, :2]
-        covered = all(
-            np.min(np.linalg.norm(foot - q[:2] - gap * np.array([np.cos(a), np.sin(a)]), axis=1))
-            <= reach
-            for a in np.arange(8) * np.pi / 4
-        )
+        high = P[P[:, 2] > cloud_zmin - d]
+        covered = True
+        for a in np.arange(8) * np.pi / 4:
+            probe = q[:2] + gap * np.array([np.cos(a), np.sin(a)])
+            r = np.linalg.norm(high[:, :2] - probe, axis=1)
+            low_there = high[r <= 2 * reach, 2].min(initial=np.inf)
+            covered &= bool((r <= reach).any() and low_there <= q[2] + 1.2 * gap + 0.1 * d)
         if covered:
             below += 1
     penetration = float(np.mean(table.distance(P) < -d))

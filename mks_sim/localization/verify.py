@@ -261,7 +261,8 @@ def consistency(
         sd = np.einsum("ij,ij->i", q - surface_pts[idx], surface_nrm[idx])
         sd[close] = 0.0  # on the surface (a visible or a resting face): not inside
         inside = (~explained) & (sd < -d)
-        rest = np.flatnonzero(~explained & ~inside)
+        # a point on the surface (a face turned from the sensors) is not seen through it
+        rest = np.flatnonzero(~explained & ~inside & ~close)
         below = np.zeros(len(near), dtype=bool)
         if len(rest):
             # under the model in its vertical column: at least two model samples within d/2
@@ -298,8 +299,24 @@ def consistency(
                         gap = np.maximum(low[idx_u] - zq[idx_u], 0.0)
                         probe = near[rest[idx_u], None, :2] + gap[:, None, None] * _DIRS8[None]
                         reach = max(0.5 * d, _model_spacing(surface_pts))
+                        # a direction is blocked where the model reaches down to the line of
+                        # sight (height ``gap`` over the point at ``gap`` away, with 20 % +
+                        # d/10 for a flat underside posed a little tilted): a surface curving
+                        # up (a cylinder on its side) leaves it open though its footprint
+                        # covers the probe
+                        ray_z = np.repeat(zq[idx_u] + 1.2 * gap + 0.1 * d, 8)
+                        # (over twice the reach: a random sampling of the underside alone
+                        # leaves holes wider than the reach of the whole footprint)
+                        hits = foot.query_ball_point(probe.reshape(-1, 2), r=2.0 * reach)
+                        z_high = P[high, 2]
+                        blocked = np.fromiter(
+                            (len(h) > 0 and z_high[h].min() <= rz for h, rz in zip(hits, ray_z)),
+                            dtype=bool,
+                            count=len(ray_z),
+                        )
                         dist = foot.query(probe.reshape(-1, 2), distance_upper_bound=reach)[0]
-                        covered = np.isfinite(dist).reshape(len(idx_u), 8).all(axis=1)
+                        blocked &= np.isfinite(dist)
+                        covered = blocked.reshape(len(idx_u), 8).all(axis=1)
                         below[rest[idx_u[covered]]] = True
         explained_n, inside_n, below_n = int(explained.sum()), int(inside.sum()), int(below.sum())
     bad = inside_n + below_n
