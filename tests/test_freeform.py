@@ -305,3 +305,19 @@ def test_verification_stops_early_only_on_a_clear_winner() -> None:
         for b in range(a + 1, len(full)):
             pa, ra = pose_error(full[a].hypothesis.matrix, full[b].hypothesis.matrix)
             assert pa > 0.001 or ra > 3.0
+
+
+def test_voxel_downsample_keeps_the_first_point_of_each_voxel() -> None:
+    # Brute force: walk the points in order and keep the first one seen in each voxel; a
+    # cloud too wide for one integer key per voxel (tiny spacing) takes the other path.
+    from mks_sim.geometry.keypoints import voxel_downsample
+
+    rng = np.random.default_rng(0)
+    for spacing in (0.004, 0.02, 1e-15):
+        pts = rng.normal(size=(500, 3)) * 0.05
+        key = np.floor((pts - pts.min(axis=0)) / spacing)
+        seen: dict[tuple[float, ...], int] = {}
+        for i, k in enumerate(map(tuple, key)):
+            seen.setdefault(k, i)
+        np.testing.assert_array_equal(voxel_downsample(pts, spacing), sorted(seen.values()))
+    assert voxel_downsample(np.zeros((0, 3)), 0.01).shape == (0,)
