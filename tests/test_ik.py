@@ -133,3 +133,19 @@ def test_bad_names(model: mujoco.MjModel) -> None:
         SiteIK(model, "tcp", ("j1", "missing"))
     with pytest.raises(MksError, match="expected hinge or slide joints"):
         SiteIK(model, "tcp", ("ball_free",))
+
+
+def test_out_of_reach_stops_early_near_the_best_reach(model: mujoco.MjModel) -> None:
+    """A target 3 m away: the arm (shoulder at z = 0.3 m, 0.61 m from shoulder to site)
+    gets no closer than ``|target - shoulder| - 0.61``. The solver stops once an iteration
+    gains < 1 %, far before ``max_iters``, within 1 % of that bound; the result is
+    self-consistent (its ``site_pos`` is MuJoCo's forward kinematics of its ``qpos``)."""
+    ik = SiteIK(model, "tcp", JOINTS)
+    target = np.array([3.0, 0.5, 0.4])
+    best = np.linalg.norm(target - [0.0, 0.0, 0.3]) - 0.61
+    res = ik.solve(_qpos(model, Q0), target, max_iters=200)
+    assert not res.converged and res.iterations < 20
+    assert best - 1e-9 <= res.position_error_m < 1.01 * best
+    pos, _ = _site_pose(model, res.qpos)
+    assert np.allclose(res.site_pos, pos)
+    assert res.position_error_m == pytest.approx(np.linalg.norm(target - pos))

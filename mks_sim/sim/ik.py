@@ -118,6 +118,7 @@ class SiteIK:
         max_iters: int = 30,
         tol_pos_m: float = 1e-4,
         tol_rot_rad: float = 1e-3,
+        min_progress: float = 0.01,
     ) -> IkResult:
         """Joint angles putting the site at ``target_pos`` (and ``target_quat``).
 
@@ -129,6 +130,11 @@ class SiteIK:
             max_iters: most DLS steps.
             tol_pos_m: position tolerance, metres.
             tol_rot_rad: orientation tolerance, radians.
+            min_progress: stop early when an iteration shrinks the error (metres + radians)
+                by less than this fraction: the target is out of reach (a joint limit or
+                the workspace boundary), and further steps only creep along it. With random
+                env actions a third of the targets are out of reach, and each ran all
+                ``max_iters`` (issue 11). 0 runs every iteration.
 
         Returns:
             The last iterate (limited joints always inside their ranges), converged or not.
@@ -142,6 +148,7 @@ class SiteIK:
         rows = 3 if quat is None else 6
         err = np.zeros(rows)
         it = 0
+        last, last_errors, q_last = np.inf, (np.inf, np.inf), q
         while True:
             d.qpos[self._qadr] = q
             mujoco.mj_kinematics(m, d)
@@ -156,8 +163,16 @@ class SiteIK:
             pos_e = float(np.linalg.norm(err[:3]))
             rot_e = float(np.linalg.norm(err[3:])) if quat is not None else 0.0
             converged = pos_e < tol_pos_m and rot_e < tol_rot_rad
-            if converged or it >= max_iters:
+            total = pos_e + rot_e
+            if not converged and total > last:  # the step made it worse: keep the one before
+                q = q_last
+                d.qpos[self._qadr] = q
+                mujoco.mj_kinematics(m, d)
+                pos_e, rot_e = last_errors
                 break
+            if converged or it >= max_iters or total > (1.0 - min_progress) * last:
+                break
+            last, last_errors, q_last = total, (pos_e, rot_e), q
             mujoco.mj_comPos(m, d)
             mujoco.mj_jacSite(m, d, self._jacp, None if quat is None else self._jacr, self._site)
             J = self._jacp[:, self._dofadr]  # (3, n)
