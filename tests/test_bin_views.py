@@ -44,10 +44,20 @@ def test_two_views_of_one_surface_do_not_double_density() -> None:
         d = np.linalg.norm(kept_b[:, None, :] - a[None, :, :], axis=2).min(axis=1)
         assert d.min() > 0.0025
     assert len(fused.data) < 1.2 * len(a)  # a plain union would be 2x
-    # a second view of a surface the first did not see adds all its points
-    c = _plane(0.0025, 0.0) + [0.2, 0.0, 0.0]
+    # a second view of a surface the first did not see adds all its points when they are
+    # sparser than merge_m ...
+    c = _plane(0.003, 0.0) + [0.2, 0.0, 0.0]
     fused2 = fuse_views({"range_finder": Views([[_scan(a)], [_scan(c)]])}, {"merge_m": 0.0025})
     assert len(fused2.data) == len(a) + len(c)
+    # ... and a close, dense view (1 mm) is thinned to about the first view's density: one
+    # point per 2.5 mm cube, every cube of the view kept (brute force over the cubes)
+    e = _plane(0.001, 0.0, n=100) + [0.2, 0.0, 0.0]
+    fused3 = fuse_views({"range_finder": Views([[_scan(a)], [_scan(e)]])}, {"merge_m": 0.0025})
+    kept_e = fused3.data[fused3.source == "range_finder#1"]
+    cubes = {tuple(v) for v in np.floor(kept_e / 0.0025).astype(int)}
+    assert len(cubes) == len(kept_e)  # one point per cube
+    assert cubes == {tuple(v) for v in np.floor(e / 0.0025).astype(int)}
+    assert len(kept_e) < 0.25 * len(e)
 
 
 def test_depth_view_back_projects_through_the_pose() -> None:
@@ -59,7 +69,8 @@ def test_depth_view_back_projects_through_the_pose() -> None:
     fused = fuse_views({"wrist_camera": Views([_depth_frame(depth, T)])}, {})
     assert len(fused.data) == depth.size - 1
     assert np.allclose(fused.data[:, 2], 0.8)
-    pts, which = merge_views([fused.data, fused.data + [0.0, 0.0, 0.01]], 0.0025)
+    # 2 mm pixels, merged at 1.5 mm: a surface 1 cm away keeps every point of its view
+    pts, which = merge_views([fused.data, fused.data + [0.0, 0.0, 0.01]], 0.0015)
     assert len(pts) == 2 * len(fused.data) and set(which) == {0, 1}
 
 

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -120,6 +121,7 @@ def localize_all(
     per_segment: int = 4,
     max_split: int = 6,
     rng: np.random.Generator | None = None,
+    prior: Sequence[ArrayLike] = (),
 ) -> Instances:
     """Every instance of ``model`` in ``points`` (module docstring).
 
@@ -141,6 +143,11 @@ def localize_all(
         per_segment: candidates checked per segment and pass.
         max_split: a segment no candidate explains is split into at most this many clusters.
         rng: generator (RANSAC, ICP subsets); default seeded 0.
+        prior: (4, 4) poses found before in part of these points (an earlier view, best
+            first): each is polished and checked like a voted candidate, before any voting,
+            and kept when it passes. Re-voting a fused cloud from scratch lost instances the
+            first view had found (another view changes the segments); a prior that the new
+            points show to be wrong (points seen through it) fails the check and is dropped.
 
     Returns:
         :class:`Instances`.
@@ -182,6 +189,21 @@ def localize_all(
     timing = {"passes": 0.0, "verification": 0.0}
     found: list[Instance] = []
     passes = 0
+    t = time.perf_counter()
+    for T in prior:
+        T = np.asarray(T, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or len(found) >= max_instances:
+            continue
+        h = PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3])
+        inst = _check(
+            h, cloud, tree, np.flatnonzero(~claimed), claimed, found, surface, surf_pts,
+            surf_nrm, table, d, centre, radius, size, same_fraction, min_new_fraction,
+            expected, 0, rng, verify_hypotheses,
+        )  # fmt: skip
+        if inst is not None and inst.score >= min_score:
+            found.append(inst)
+            claimed[inst.points] = True
+    timing["verification"] += time.perf_counter() - t
     for passes in range(1, max_passes + 1):  # noqa: B007 - reported
         free = np.flatnonzero(~claimed)
         if len(free) < 60 or len(found) >= max_instances:
@@ -412,6 +434,7 @@ def localize_instances(
     models: tuple[str, ...] = (),
     max_instances: int = 12,
     sensor: str | None = None,
+    prior: Sequence[ArrayLike] = (),
 ) -> SensedInstances:
     """Sense the scene once and localize every instance of a database object.
 
@@ -429,6 +452,7 @@ def localize_instances(
         max_instances: stop after this many.
         sensor: the logical sensor of 3-D points (default the workstation's
             ``Range_Points``).
+        prior: poses found in an earlier view, checked first (:func:`localize_all`).
 
     Raises:
         NotFound: unknown object.
@@ -462,7 +486,9 @@ def localize_instances(
     if len(pts) < 50:
         raise SensorFailure(sensor, f"expected >= 50 points in the region, got {len(pts)}")
     table, _, _ = find_table(pts, rng, spacing=0.0, noise=0.0, near_z=table_z_m(graph))
-    result = localize_all(model, pts, table=table, rng=rng, max_instances=max_instances)
+    result = localize_all(
+        model, pts, table=table, rng=rng, max_instances=max_instances, prior=prior
+    )
     total = time.perf_counter() - t0
     return SensedInstances(
         result,
