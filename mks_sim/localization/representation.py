@@ -271,6 +271,15 @@ class Representation:
         return SpatialProximityGraph(self.objects, m=self.config.m)
 
     @cached_property
+    def _spg_adjacency(self) -> Any:
+        """The SPG's CSR adjacency (the SPG builds it per access: once here)."""
+        from scipy import sparse
+
+        adj = sparse.csr_array(self.graph.adjacency)
+        nnz = int(adj.indptr[-1])  # the SPG's arrays may hold spare room past the last row
+        return sparse.csr_array((adj.data[:nnz], adj.indices[:nnz], adj.indptr), shape=adj.shape)
+
+    @cached_property
     def labels(self) -> IntArray:
         """(K,) object (SPG component over edges <= :attr:`gap`) of each object point."""
         from scipy import sparse
@@ -278,23 +287,32 @@ class Representation:
 
         if len(self.objects) == 0:
             return np.zeros(0, dtype=np.intp)
-        adj = sparse.csr_array(self.graph.adjacency).tocoo()
-        short = adj.data <= self.gap
+        adj = self._spg_adjacency
         joined = sparse.csr_array(
-            (np.ones(int(short.sum())), (adj.row[short], adj.col[short])), shape=adj.shape
+            ((adj.data <= self.gap).astype(np.float64), adj.indices, adj.indptr),
+            shape=adj.shape,
+            copy=True,  # eliminate_zeros works in place: the SPG's arrays stay untouched
         )
+        joined.eliminate_zeros()
         _, comp = csgraph.connected_components(joined, directed=True, connection="weak")
         return np.asarray(comp, dtype=np.intp)
 
     @cached_property
     def _adjacency(self) -> Any:
-        """The SPG without the edges between objects (the neighbourhoods of grouping)."""
+        """The SPG without the edges between objects (the neighbourhoods of grouping), as a
+        :class:`~mks_sim.lowlevel.normals.FixedGraph` (its symmetric closure computed once
+        for the normals and the region growing)."""
         from scipy import sparse
 
-        adj = sparse.csr_array(self.graph.adjacency).tocoo()
+        from mks_sim.lowlevel.normals import FixedGraph
+
+        adj = self._spg_adjacency
         lab = self.labels
-        same = lab[adj.row] == lab[adj.col]
-        return sparse.csr_array((adj.data[same], (adj.row[same], adj.col[same])), shape=adj.shape)
+        row = np.repeat(np.arange(adj.shape[0]), np.diff(adj.indptr))
+        same = lab[row] == lab[adj.indices]
+        return FixedGraph(
+            sparse.csr_array((adj.data[same], (row[same], adj.indices[same])), shape=adj.shape)
+        )
 
     def components(self, min_points: int = 30) -> list[IntArray]:
         """Object-point indices of each SPG component with at least ``min_points``, largest
@@ -321,10 +339,13 @@ class Representation:
         pts = self.objects
         if len(pts) < 3:
             return SurfaceNormals(np.zeros((len(pts), 3)), np.zeros(len(pts)))
-        graph = _Fixed(self._adjacency)
         vp = self.config.viewpoint
         sn = estimate_normals(
-            pts, graph, viewpoint=vp, normal_rings=2 if self.noisy else 1, curvature_rings=2
+            pts,
+            self._adjacency,
+            viewpoint=vp,
+            normal_rings=2 if self.noisy else 1,
+            curvature_rings=2,
         )
         if vp is None:  # away from each component's centroid (one convex object each)
             lab = self.labels
@@ -358,7 +379,7 @@ class Representation:
 
         return segment_surfaces(
             self.objects,
-            _Fixed(self._adjacency),
+            self._adjacency,
             surface_normals=self.normals,
             seeds=self.seeds,
             min_points=self.config.min_region_points,
@@ -403,13 +424,6 @@ class Representation:
                 planes,
             )
         return self._cache[key]
-
-
-@dataclass(frozen=True)
-class _Fixed:
-    """A graph whose adjacency is already a CSR array (no rebuild per access)."""
-
-    adjacency: Any
 
 
 _REGISTRY: dict[tuple[int, RepresentationConfig], tuple[Any, Representation]] = {}

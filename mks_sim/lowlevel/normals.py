@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Protocol
 
 import numpy as np
@@ -23,6 +24,7 @@ from mks_sim.lowlevel.spg import SpatialProximityGraph
 
 __all__ = [
     "DEFAULT_CURVATURE_THRESHOLD",
+    "FixedGraph",
     "SurfaceNormals",
     "as_points",
     "build_graph",
@@ -49,6 +51,30 @@ class GraphLike(Protocol):
 
     @property
     def adjacency(self) -> Any: ...
+
+
+class FixedGraph:
+    """A graph whose CSR adjacency is built once (an SPG builds it per access) and whose
+    symmetric closure ``A + A.T`` (the undirected neighbourhoods of multi-ring normals and
+    region growing) is computed at most once, on first use."""
+
+    def __init__(self, adjacency: Any) -> None:
+        self.adjacency = sparse.csr_array(adjacency)
+
+    @classmethod
+    def of(cls, graph: GraphLike) -> FixedGraph:
+        """``graph`` itself when it is a FixedGraph, else a FixedGraph of its adjacency."""
+        return graph if isinstance(graph, FixedGraph) else cls(graph.adjacency)
+
+    @cached_property
+    def symmetric(self) -> sparse.csr_array:
+        """``A + A.T`` as CSR (entries: summed edge lengths; the pattern is what counts)."""
+        return sparse.csr_array(self.adjacency + self.adjacency.T)
+
+
+def symmetric_adjacency(graph: GraphLike) -> sparse.csr_array:
+    """``A + A.T`` of a graph's adjacency (cached on a :class:`FixedGraph`)."""
+    return FixedGraph.of(graph).symmetric
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,8 +188,7 @@ def _ring_pca(pts: FloatArray, graph: GraphLike, rings: int) -> tuple[FloatArray
         return _pca_sparse(pts, _ring_matrix(graph, rings))
     from mks_sim.lowlevel._regions_kernels import ring_moments
 
-    adj = sparse.csr_array(graph.adjacency)
-    sym = sparse.csr_array(adj + adj.T)
+    sym = symmetric_adjacency(graph)
     c = np.ascontiguousarray(pts - pts.mean(axis=0), dtype=np.float64)
     cov = ring_moments(sym.indptr.astype(np.int64), sym.indices.astype(np.int64), c, rings)
     return _smallest_eigen(cov)
@@ -245,8 +270,7 @@ def estimate_normals(
         :class:`SurfaceNormals`.
     """
     pts = as_points(points, "estimate_normals: points", min_points=3)
-    if graph is None:
-        graph = SpatialProximityGraph(pts, m=m)
+    graph = FixedGraph.of(graph if graph is not None else SpatialProximityGraph(pts, m=m))
     normals, curvature = _ring_pca(pts, graph, normal_rings)
     if curvature_rings != normal_rings:
         _, curvature = _ring_pca(pts, graph, curvature_rings)

@@ -20,12 +20,14 @@ from scipy.sparse import csgraph
 from mks_sim.errors import DataError
 from mks_sim.lowlevel.normals import (
     DEFAULT_CURVATURE_THRESHOLD,
+    FixedGraph,
     GraphLike,
     SurfaceNormals,
     as_points,
     curvature_code,
     estimate_normals,
     neighbour_table,
+    symmetric_adjacency,
 )
 from mks_sim.lowlevel.spg import SpatialProximityGraph
 
@@ -132,11 +134,6 @@ class Segmentation:
     planes: tuple[PlanarRegion, ...]
     curved: tuple[CurvedRegion, ...]
     spacing: float
-
-
-@dataclass(frozen=True, eq=False)
-class _FixedGraph:
-    adjacency: sparse.csr_array
 
 
 def median_spacing(graph: GraphLike) -> float:
@@ -416,8 +413,7 @@ def grow_planar_regions(
     Returns:
         ``(labels, regions)``: (N,) region index or -1, and the regions (largest first).
     """
-    adj = sparse.csr_array(graph.adjacency)
-    adj = sparse.csr_array(adj + adj.T)
+    adj = symmetric_adjacency(graph)
     n = len(points)
     cos_tol = float(np.cos(np.radians(angle_deg)))
     grown, count = _grow(adj, points, normals, seeds_allowed, order, cos_tol, float(distance))
@@ -463,17 +459,15 @@ def _absorb_boundary(
             return
         nb = labels[idx[free]]  # (F, K) neighbour labels
         nb[~valid[free]] = -1
-        best = np.full(free.size, np.inf)
-        choice = np.full(free.size, -1, dtype=np.intp)
-        for k in range(nb.shape[1]):
-            lab = nb[:, k]
-            has = lab >= 0
-            d = np.full(free.size, np.inf)
-            d[has] = np.abs(
-                np.einsum("ij,ij->i", points[free[has]], normals[lab[has]]) - offsets[lab[has]]
-            )
-            better = d < best
-            best[better], choice[better] = d[better], lab[better]
+        has = nb >= 0
+        lab = np.where(has, nb, 0)
+        # distance of each free point to the plane of each labelled neighbour (inf: none);
+        # the nearest, the first neighbour on ties (argmin)
+        d = np.abs(np.einsum("fd,fkd->fk", points[free], normals[lab]) - offsets[lab])
+        d[~has] = np.inf
+        k_best = np.argmin(d, axis=1)
+        rows = np.arange(free.size)
+        best, choice = d[rows, k_best], nb[rows, k_best]
         take = best <= distance
         if not take.any():
             return
@@ -523,7 +517,7 @@ def segment_surfaces(
         raise DataError(f"segment_surfaces: seeds must be 'planar' or 'all', got {seeds!r}")
     if graph is None:
         graph = SpatialProximityGraph(pts, m=m)
-    graph = _FixedGraph(sparse.csr_array(graph.adjacency))  # the SPG builds it per access
+    graph = FixedGraph.of(graph)  # the SPG builds its adjacency per access
     if surface_normals is not None and len(surface_normals.normals) == len(pts):
         sn = surface_normals
     else:
