@@ -519,7 +519,7 @@ class BinPicker:
                 self.view_log.append({"reason": why, "taken": False, "why_not": why_not})
                 break
             before = self.sensed
-            self.sensed = self._localize(held)
+            self.sensed = self._localize(held, before)
             self.view_log.append(
                 {"reason": why, "taken": True, "viewpoint": [round(float(v), 4) for v in moved],
                  "points_before": len(before.points), "points_after": len(self.sensed.points)}
@@ -550,14 +550,17 @@ class BinPicker:
     def _held_views(held: dict[str, Any]) -> int:
         return sum(len(h.readings) for h in held.values())
 
-    def _localize(self, held: dict[str, Any]) -> Any:
+    def _localize(self, held: dict[str, Any], before: Any = None) -> Any:
+        """Localize every instance in the held views; the instances of the sensing
+        ``before`` (fewer views) are checked first and kept when the fused views agree."""
         from mks_sim.localization.instances import localize_instances
 
         # the held views stand for their devices; the others serve the sensor's alternates
         return localize_instances(
             {**self.devices, **held}, self.name, roi=self.roi, graph=self.graph, rng=self.rng,
-            models=self.models, sensor=VIEWS_SENSOR,
+            models=self.models, sensor=VIEWS_SENSOR, prior=prior,
         )  # fmt: skip
+        prior = [i.matrix for i in before.instances.instances] if before is not None else []
 
     def _needs_view(self, *, scanned: bool = True) -> str:
         """Why another view is wanted ("" : it is not): the best instance's score is low, or
@@ -925,16 +928,40 @@ def _claimed_mask(sensed: Any, i: int) -> np.ndarray:
 
 #: Candidates a pick tries when the arm cannot reach one (the pre-grasp out of reach, or the
 #: descent blocked): the best top-down ones, then the best tilted ones.
-TRY_TOP_DOWN = 3
-TRY_TILTED = 3
+TRY_TOP_DOWN = 4
+TRY_TILTED = 4
+#: Two candidates are alike when their hands differ less than this in rotation and position:
+#: the next ones tried differ from those tried (a blocked descent repeats for its neighbours).
+ALIKE_DEG = 25.0
+ALIKE_M = 0.01
+
+
+def _alike(a: Any, b: Any) -> bool:
+    """Two candidates' hands within :data:`ALIKE_DEG` and :data:`ALIKE_M` of each other."""
+    c = (np.trace(a.hand_rotation.T @ b.hand_rotation) - 1.0) / 2.0
+    turn = float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    gap = float(np.linalg.norm(np.subtract(a.pinch_world, b.pinch_world)))
+    return turn < ALIKE_DEG and gap < ALIKE_M
+
+
+def _diverse(cands: Sequence[Any], n: int) -> list[Any]:
+    """Up to ``n`` of ``cands``, best first, each unlike those before it; then, when too few
+    differ, the best of the rest."""
+    out: list[Any] = []
+    for c in cands:
+        if len(out) < n and not any(_alike(c, o) for o in out):
+            out.append(c)
+    rest = [c for c in cands if not any(c is o for o in out)]
+    return out + rest[: n - len(out)]
 
 
 def _to_try(cands: Sequence[Any]) -> list[Any]:
-    """The candidates a pick tries, in order: the first :data:`TRY_TOP_DOWN` top-down ones,
-    then the first :data:`TRY_TILTED` tilted ones (``rotation_world`` set)."""
+    """The candidates a pick tries, in order: :data:`TRY_TOP_DOWN` top-down ones, then
+    :data:`TRY_TILTED` tilted ones (``rotation_world`` set), each kind best first and
+    unlike one another (:func:`_diverse`)."""
     top = [c for c in cands if getattr(c, "rotation_world", None) is None]
     tilted = [c for c in cands if getattr(c, "rotation_world", None) is not None]
-    return top[:TRY_TOP_DOWN] + tilted[:TRY_TILTED]
+    return _diverse(top, TRY_TOP_DOWN) + _diverse(tilted, TRY_TILTED)
 
 
 def _pick(
@@ -956,10 +983,13 @@ def _pick(
             p = perturb(index, p)
         rot = p.target_rotation
         ctl.preshape(p.preshape_q, 10)
-        if not ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.03, rotation=rot):
+        pre = ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.03, rotation=rot)
+        if not (pre or _reached(ctl, p.pregrasp_world, p.hand_rotation)):
             no_ik += 1
             continue
-        if ctl.move_to(np.asarray(p.grasp_point_world), p.yaw_rad, spacing_m=0.01, rotation=rot):
+        grasp = np.asarray(p.grasp_point_world)
+        down = ctl.move_to(grasp, p.yaw_rad, spacing_m=0.01, rotation=rot)
+        if down or _reached(ctl, grasp, p.hand_rotation):
             plan = p
             break
         blocked += 1
@@ -982,6 +1012,21 @@ def _pick(
     if not _held(ctl, touch_n):
         return False, "slipped", None
     return True, "", pinch_to_world
+
+
+#: A move that ``move_to`` reports failed (a waypoint's IK on the way did not converge, or
+#: the arm settled slowly) still counts when the pinch site ended this close to the target.
+REACHED_M = 0.005
+REACHED_DEG = 3.0
+
+
+def _reached(ctl: Any, pos: np.ndarray, rotation: np.ndarray) -> bool:
+    """The pinch site is within :data:`REACHED_M` and :data:`REACHED_DEG` of the pose (the
+    robot's own forward kinematics)."""
+    if float(np.linalg.norm(ctl.pinch_pos() - np.asarray(pos, dtype=float))) > REACHED_M:
+        return False
+    c = (np.trace(ctl.pinch_rotation().T @ np.asarray(rotation, dtype=float)) - 1.0) / 2.0
+    return bool(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))) <= REACHED_DEG)
 
 
 def _held(ctl: Any, touch_n: float) -> bool:
