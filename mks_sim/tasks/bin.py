@@ -385,6 +385,11 @@ PlanPerturbation = Callable[[int, Any], Any]
 
 #: The logical sensor that fuses the views (``sensors/views.toml``).
 VIEWS_SENSOR = "Fused_Points"
+#: Nothing found in the scanner's view but at least this many sensed points higher than
+#: ``LEFT_ABOVE_M`` above the table: something is left, take a wrist view (a part shows
+#: ~300-1500 points at the scanner's 2.5 mm spacing; the empty bin's floor noise none).
+LEFT_POINTS = 60
+LEFT_ABOVE_M = 0.005
 
 
 def _database_objects() -> list[str]:
@@ -555,25 +560,31 @@ class BinPicker:
         ``before`` (fewer views) are checked first and kept when the fused views agree."""
         from mks_sim.localization.instances import localize_instances
 
+        prior = [i.matrix for i in before.instances.instances] if before is not None else []
         # the held views stand for their devices; the others serve the sensor's alternates
         return localize_instances(
             {**self.devices, **held}, self.name, roi=self.roi, graph=self.graph, rng=self.rng,
             models=self.models, sensor=VIEWS_SENSOR, prior=prior,
         )  # fmt: skip
-        prior = [i.matrix for i in before.instances.instances] if before is not None else []
 
     def _needs_view(self, *, scanned: bool = True) -> str:
         """Why another view is wanted ("" : it is not): the best instance's score is low, or
         its best grasp's pad contacts have few sensed points near them (occluded); without a
         scanner view (range finder failed) always, up to ``max_views``: one wrist view sees
         the bin from one side (6-part bins 1, 2, 4: 10 -> 14 of 18 found, the false positive
-        gone). With the scanner's view of the whole bin, nothing found means an empty bin."""
+        gone). With the scanner's view of the whole bin, nothing found is an empty bin only
+        when fewer than :data:`LEFT_POINTS` points stand above the table: more are a part
+        the scanner sees too little of (leaning on a wall), and the wrist camera looks."""
         insts = self.sensed.instances.instances
         if not scanned:
             # the wrist camera alone sees part of the bin from one viewpoint: look from all
             return "nothing found" if not insts else "no scanner view"
         if not insts:
-            return ""
+            table = self.sensed.instances.table
+            if table is None:
+                return ""
+            up = int(np.sum(table.distance(self.sensed.points) > LEFT_ABOVE_M))
+            return f"nothing found, {up} points above the table" if up >= LEFT_POINTS else ""
         if insts[0].score < self.view.rescan_below:
             return f"score {insts[0].score:.2f} < {self.view.rescan_below}"
         cands = self.grasps(0)
