@@ -661,7 +661,8 @@ class BinPicker:
                 (walls) are obstacles; ``"fixed"``: only what no instance explains (walls: the
                 fingers may push neighbouring parts aside); ``"tight"``: the same, the
                 fingertips allowed :data:`TIGHT_CLEARANCE_M` from them (a rigid wall, not a
-                part that may move); ``"none"``.
+                part that may move); ``"touch"``: the same at :data:`TOUCH_CLEARANCE_M`
+                (the fingertips may graze a wall); ``"none"``.
         """
         from mks_sim.tasks.grasp import FINGER_CLEARANCE_M, synthesize_grasps
 
@@ -676,10 +677,12 @@ class BinPicker:
             # other instance claimed
             own = np.linalg.norm(P - T[:3, 3], axis=1) < self.radius + 0.005
             own &= ~_claimed_mask(self.sensed, i)
-            if obstacles in ("fixed", "tight"):
+            if obstacles in ("fixed", "tight", "touch"):
                 own |= _claimed_mask(self.sensed, -1)
             obs = P[~own & (P[:, 2] > self.table_z + 0.004)]
-        clearance = TIGHT_CLEARANCE_M if obstacles == "tight" else FINGER_CLEARANCE_M
+        clearance = {"tight": TIGHT_CLEARANCE_M, "touch": TOUCH_CLEARANCE_M}.get(
+            obstacles, FINGER_CLEARANCE_M
+        )
         cands = synthesize_grasps(
             self.obj, T, table_z=self.table_z, obstacles=obs, rng=self.rng,
             preferred_yaw=self.ctl.pinch_yaw(), finger_clearance_m=clearance,
@@ -811,19 +814,24 @@ def clear_bin(
         # with another instance resting on them (it would be carried along and dropped)
         covered = [covered_points(robot.sensed, i, robot.obj) > COVERED_POINTS for i in
                    range(len(found))]  # fmt: skip
-        order = sorted(
-            range(len(found)),
-            key=lambda i: (
-                any(np.linalg.norm(found[i].matrix[:3, 3] - f) < FAILED_NEAR_M for f in failed_at),
-                covered[i],
-            ),
-        )
+        near_failed = [
+            any(np.linalg.norm(inst.matrix[:3, 3] - f) < FAILED_NEAR_M for f in failed_at)
+            for inst in found
+        ]
+        order = sorted(range(len(found)), key=lambda i: (near_failed[i], covered[i]))
         chosen: tuple[int, Any] | None = None
         blocked = no_pair = 0
         # Clear of everything first; in a pile every part may have a neighbour within the
         # fingers' clearance: then the fingers may push neighbouring parts (not the walls);
-        # last, the fingertips may pass the walls closer (a part lying against a wall).
-        for obstacles in ("all", "fixed", "tight"):
+        # then the fingertips may pass the walls closer (a part lying against a wall); last,
+        # once per instance not failed on yet, they may graze them (the bin stops otherwise).
+        for obstacles in ("all", "fixed", "tight", "touch"):
+            if obstacles == "touch":  # keeps the counts of the "tight" round for the report
+                tried = [i for i in order if not near_failed[i]]
+                chosen = next(
+                    ((i, c) for i in tried if (c := robot.grasps(i, obstacles="touch"))), None
+                )
+                break
             blocked = no_pair = 0
             for i in order:
                 cands = robot.grasps(i, obstacles=obstacles)
@@ -887,6 +895,9 @@ def clear_bin(
 #: Fingertips may pass this close to what no instance explains (the bin's walls: rigid and
 #: where they were sensed) in the last planning round; the fingertip is ~10 mm thick.
 TIGHT_CLEARANCE_M = 0.012
+#: ... and this close in a last round, once per instance (a fingertip's half thickness and
+#: 2 mm: the fingertip may graze the wall; a part against a wall is otherwise left in the bin).
+TOUCH_CLEARANCE_M = 0.007
 
 #: An instance with more than this many of other instances' sensed points resting on it is
 #: picked after the free ones.
