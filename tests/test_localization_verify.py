@@ -32,7 +32,9 @@ def _brute(T, pts, nrm, cloud, table, d):  # noqa: ANN001, ANN202
         if not (np.min(dd[seen]) <= d or dd[j] <= d or (q - P[j]) @ N[j] < -d):
             rest_z.append(q[2])
     cloud_zmin = min(rest_z) if rest_z else 0.0
+    loose = 0  # neither explained nor impossible, off the table by more than d
     for q in near:
+        off_table = table.distance(q[None])[0] > d
         dd = np.linalg.norm(P - q, axis=1)
         if np.min(dd[seen]) <= d:
             explained += 1
@@ -42,9 +44,11 @@ def _brute(T, pts, nrm, cloud, table, d):  # noqa: ANN001, ANN202
             inside += 1
             continue
         if dd[j] <= d:  # on the surface (turned from the sensors): not seen through it
+            loose += off_table
             continue
         col = np.linalg.norm(P[:, :2] - q[:2], axis=1) <= 0.5 * d
         if np.count_nonzero(col & (P[:, 2] > q[2] + 2 * d)) < 2:
+            loose += off_table
             continue
         # seen by an oblique (45 deg) sensor when, within the height of the lowest model
         # surface over it, some horizontal direction leaves the footprint of the model above
@@ -62,8 +66,10 @@ def _brute(T, pts, nrm, cloud, table, d):  # noqa: ANN001, ANN202
             covered &= bool((r <= reach).any() and low_there <= q[2] + 1.2 * gap + 0.1 * d)
         if covered:
             below += 1
+        else:
+            loose += off_table
     penetration = float(np.mean(table.distance(P) < -d))
-    return explained, inside, below, penetration
+    return explained, inside, below, penetration, loose
 
 
 @pytest.mark.parametrize(
@@ -84,8 +90,8 @@ def test_consistency_counts_match_brute_force(shift: tuple[float, float, float])
     Ts = make_transform(np.eye(3), np.add(T[:3, 3], shift))
     d = 0.003
     got = consistency(Ts, pts, nrm, cloud, table, d)
-    exp_e, exp_i, exp_b, exp_p = _brute(Ts, pts, nrm, cloud, table, d)
-    assert (got.explained, got.inside, got.below) == (exp_e, exp_i, exp_b)
+    exp_e, exp_i, exp_b, exp_p, exp_u = _brute(Ts, pts, nrm, cloud, table, d)
+    assert (got.explained, got.inside, got.below, got.unexplained) == (exp_e, exp_i, exp_b, exp_u)
     assert got.penetration == pytest.approx(exp_p)
     if shift[2] == 0.0 and shift != (0.0, 0.0, 0.0):
         assert exp_b > 0  # a pose shifted along the table hides table points under it
@@ -119,3 +125,57 @@ def test_points_under_an_overhang_are_seen_obliquely_not_impossible() -> None:
     floating = consistency(T, slab, slab_n, np.concatenate([top, rim]), table, 0.003)
     under_slab = int(np.sum(np.max(np.abs(rim[:, :2]), axis=1) < 0.03))
     assert floating.below > 0.5 * under_slab and not floating.ok
+
+
+def _face_grid(lo: np.ndarray, hi: np.ndarray, step: float = 0.002) -> np.ndarray:
+    """Points every ``step`` on an axis-aligned rectangle from ``lo`` to ``hi`` (one axis flat)."""
+    axes = [np.arange(a, b + 1e-9, step) if b > a else np.array([a]) for a, b in zip(lo, hi)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def test_rank_prefers_the_pose_that_leaves_no_object_part_unexplained() -> None:
+    """A cube pose wrapped around the lower part of a taller box of the same cross-section
+    explains more points than the true cube whose top is half hidden (by a sphere above
+    it), but leaves the box's upper part unexplained: ranking by net support picks the true
+    cube (by the explained count alone it picked the box, as the stereo pair did)."""
+    from mks_sim.localization.verify import rank
+    from mks_sim.models.pose import PoseHypothesis
+
+    rng = np.random.default_rng(7)
+    pts, nrm = sample_surface(box_mesh(0.05), 3000, rng=rng)
+    h, z0 = 0.025, 0.75
+    # the true cube at (-0.06, 0): its top without a 2 cm disc, two sides (+x, -y)
+    a = np.array([-0.06, 0.0])
+    top = _face_grid([a[0] - h, a[1] - h, z0 + 2 * h], [a[0] + h, a[1] + h, z0 + 2 * h])
+    top = top[np.linalg.norm(top[:, :2] - a, axis=1) > 0.02]
+    cube = np.concatenate(
+        [
+            top,
+            _face_grid([a[0] + h, a[1] - h, z0], [a[0] + h, a[1] + h, z0 + 2 * h]),
+            _face_grid([a[0] - h, a[1] - h, z0], [a[0] + h, a[1] - h, z0 + 2 * h]),
+        ]
+    )
+    # a 5 x 5 x 10 cm box at (0.06, 0): top and three sides
+    b = np.array([0.06, 0.0])
+    box = np.concatenate(
+        [
+            _face_grid([b[0] - h, b[1] - h, z0 + 0.1], [b[0] + h, b[1] + h, z0 + 0.1]),
+            _face_grid([b[0] + h, b[1] - h, z0], [b[0] + h, b[1] + h, z0 + 0.1]),
+            _face_grid([b[0] - h, b[1] - h, z0], [b[0] + h, b[1] - h, z0 + 0.1]),
+            _face_grid([b[0] - h, b[1] + h, z0], [b[0] + h, b[1] + h, z0 + 0.1]),
+        ]
+    )
+    g = _face_grid([-0.15, -0.1, z0], [0.15, 0.1, z0], 0.004)
+    free = (np.abs(g[:, 0] - a[0]) > h + 0.002) | (np.abs(g[:, 1]) > h + 0.002)
+    free &= (np.abs(g[:, 0] - b[0]) > h + 0.002) | (np.abs(g[:, 1]) > h + 0.002)
+    cloud = np.concatenate([cube, box, g[free]]) + rng.normal(0, 0.0003, (1, 3))
+    table = Plane(np.array([0.0, 0.0, 1.0]), z0)
+    d = 0.003
+    poses = [make_transform(np.eye(3), [c[0], c[1], z0 + h]) for c in (b, a)]
+    cands = [PoseHypothesis(matrix=T, reference_point=T[:3, 3], score=0.5) for T in poses]
+    checks = [consistency(T, pts, nrm, cloud, table, d) for T in poses]
+    assert all(c.ok for c in checks)
+    assert checks[0].explained > checks[1].explained  # the old key would pick the box
+    assert checks[0].unexplained > checks[1].unexplained
+    order, good = rank(cands, checks)
+    assert order[0] == 1 and good[0] is cands[1]

@@ -152,6 +152,9 @@ class Consistency:
         below: points under the model in their vertical column (could not have been seen).
         penetration: fraction of the model surface below the table by more than ``d``.
         ok: explained >= 30, inside + below <= 5 % of explained, penetration <= 2 %.
+        unexplained: points off the table (by more than ``d``) within the model's bounding
+            sphere that the posed model does not explain: an object the pose covers only
+            part of (a cube pose inside a taller box) leaves its upper part here.
     """
 
     explained: int
@@ -159,6 +162,13 @@ class Consistency:
     below: int
     penetration: float
     ok: bool
+    unexplained: int = 0
+
+    @property
+    def support(self) -> int:
+        """Net support of the pose: points explained minus nearby object points left
+        unexplained (the ranking key among consistent poses)."""
+        return self.explained - self.unexplained
 
     def __getitem__(self, key: str) -> Any:
         """Dictionary-style access (``check["ok"]``) for reports."""
@@ -172,9 +182,7 @@ class Consistency:
 _MODEL_TREES: dict[int, tuple[Any, cKDTree]] = {}
 _SPACINGS: dict[tuple[str, int], tuple[Any, float]] = {}
 #: Eight horizontal unit directions (the openings around a point under an overhang).
-_DIRS8 = np.stack(
-    [np.cos(np.arange(8) * np.pi / 4), np.sin(np.arange(8) * np.pi / 4)], axis=1
-)
+_DIRS8 = np.stack([np.cos(np.arange(8) * np.pi / 4), np.sin(np.arange(8) * np.pi / 4)], axis=1)
 
 
 def _model_tree(surface_pts: FloatArray) -> cKDTree:
@@ -242,7 +250,7 @@ def consistency(
         near = cloud[cloud_tree.query_ball_point(centre, r=radius + 2 * d)]
     else:
         near = cloud[np.linalg.norm(cloud - centre, axis=1) <= radius + 2 * d]
-    explained_n = inside_n = below_n = 0
+    explained_n = inside_n = below_n = unexplained_n = 0
     penetration = 0.0
     if table is not None:
         penetration = float(np.mean(table.distance(P) < -d))
@@ -319,18 +327,28 @@ def consistency(
                         covered = blocked.reshape(len(idx_u), 8).all(axis=1)
                         below[rest[idx_u[covered]]] = True
         explained_n, inside_n, below_n = int(explained.sum()), int(inside.sum()), int(below.sum())
+        loose = ~explained & ~inside & ~below
+        if table is not None:
+            loose &= table.distance(near) > d
+        unexplained_n = int(loose.sum())
     bad = inside_n + below_n
     ok = bool(explained_n >= 30 and bad <= 0.05 * max(explained_n, 1) and penetration <= 0.02)
-    return Consistency(explained_n, inside_n, below_n, penetration, ok)
+    return Consistency(explained_n, inside_n, below_n, penetration, ok, unexplained_n)
 
 
 def rank(
     candidates: list[PoseHypothesis], checks: list[Consistency]
 ) -> tuple[list[int], list[PoseHypothesis]]:
-    """Candidate order (consistent first, then most points explained, then score) and the
-    consistent candidates in that order."""
+    """Candidate order (consistent first, then the most net support: points explained
+    minus nearby object points left unexplained, then score) and the consistent candidates
+    in that order.
+
+    Net support, not the explained count alone: with the stereo pair's noisier points a
+    cube pose wrapped around the lower part of a taller clutter box explained more points
+    than the true pose under the sphere (tuning seed 1008: 1183 vs 1149) while leaving the
+    box's upper part unexplained (309 vs 167 points)."""
     order = sorted(
         range(len(checks)),
-        key=lambda i: (not checks[i].ok, -checks[i].explained, -candidates[i].score),
+        key=lambda i: (not checks[i].ok, -checks[i].support, -candidates[i].score),
     )
     return order, [candidates[i] for i in order if checks[i].ok]
