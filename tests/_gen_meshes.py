@@ -6,9 +6,8 @@ import numpy as np
 import trimesh
 
 
-def l_bracket() -> trimesh.Trimesh:
-    """An L-shaped bracket: 60 x 40 mm legs, 10 mm thick, 25 mm wide (extruded L)."""
-    t = 0.01
+def l_bracket(t: float = 0.01) -> trimesh.Trimesh:
+    """An L-shaped bracket: 60 x 40 mm legs, ``t`` (10 mm) thick, 25 mm wide (extruded L)."""
     poly = np.array([[0, 0], [0.06, 0], [0.06, t], [t, t], [t, 0.04], [0, 0.04]], float)
     # fan from the reflex vertex (index 3) sees every other vertex of the L
     faces = np.array([[3, 4, 5], [3, 5, 0], [3, 0, 1], [3, 1, 2]])

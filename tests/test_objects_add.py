@@ -13,7 +13,8 @@ import trimesh
 
 from mks_sim.cli import main
 from mks_sim.errors import DataError
-from mks_sim.models.importer import add_object, stable_poses
+from mks_sim.geometry.meshes import Mesh
+from mks_sim.models.importer import add_object, pinch_fraction, stable_poses
 from mks_sim.models.objects import load_object, object_names
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -52,6 +53,8 @@ def test_l_bracket_convex_decomposition(tmp_path: Path) -> None:
     src = _export_mm(gen.l_bracket(), tmp_path / "l.stl")
     rep = add_object(src, "bracket", tmp_path, units="mm")
     assert rep.kinds == ("polyhedral",) and rep.symmetry == "none"
+    # 10 mm walls, 13 mm pads: every pair the hand closes on (>= 20 mm) ends on a 10 mm face
+    assert any("walls thinner than the pads" in w for w in rep.warnings)
     obj = load_object("bracket", models=[tmp_path])
     assert isinstance(obj.collision, tuple) and len(obj.collision) >= 2
     # every part is convex and the parts together cover the bracket (volume within 15 %)
@@ -109,6 +112,24 @@ def test_existing_name_is_refused(tmp_path: Path) -> None:
     src = _export_mm(gen.wedge(), tmp_path / "w.stl")
     with pytest.raises(SpecError, match="'cube' already exists in .*cube_5cm.toml"):
         add_object(src, "cube", tmp_path / "m", units="mm")
+
+
+def _mesh(tm: trimesh.Trimesh) -> Mesh:
+    return Mesh(np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64))
+
+
+def test_pinch_sites_need_a_pad_on_both_faces() -> None:
+    """Geometry the hand's limits decide by hand: a 10 mm plate (pairs across it are too
+    narrow, pairs across 60 mm end on 10 mm edges) and the 10 mm bracket have no pinch site;
+    a 30 mm cube (6 faces, each pair 30 mm apart) has one almost everywhere, and so has the
+    bracket with 22 mm walls on its leg faces."""
+    assert pinch_fraction(_mesh(trimesh.creation.box((0.06, 0.06, 0.01)))) == 0.0
+    assert pinch_fraction(_mesh(gen.l_bracket())) == 0.0
+    # a 13 mm pad fits where the contact is 6.5 mm or more from every edge: (17/30)^2
+    assert pinch_fraction(_mesh(trimesh.creation.box((0.03, 0.03, 0.03)))) == pytest.approx(
+        (17 / 30) ** 2, abs=0.08
+    )
+    assert pinch_fraction(_mesh(gen.l_bracket(0.022))) > 0.1
 
 
 def test_small_object_warns(tmp_path: Path) -> None:

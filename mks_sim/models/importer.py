@@ -1,7 +1,8 @@
 """``mks-sim objects add``: a mesh file becomes a model-database object (issue 10 section 2).
 
 :func:`add_object` reads a mesh (STL, OBJ, PLY via trimesh), converts it to metres, checks it
-(empty, degenerate, non-watertight, absurd size for the Jaco hand), puts the body origin at
+(empty, degenerate, non-watertight, absurd size for the Jaco hand, walls thinner than its
+pads: :func:`pinch_fraction`), puts the body origin at
 its centre of mass, and writes into ``out_dir``:
 
 - ``NAME.obj``: the surface (metres, body frame);
@@ -34,6 +35,7 @@ __all__ = [
     "ImportReport",
     "add_object",
     "check_mesh",
+    "pinch_fraction",
     "planar_fraction",
     "stable_poses",
 ]
@@ -156,6 +158,73 @@ def check_mesh(tm: Any, where: str) -> tuple[Any, list[str]]:
             f"({lo * 100:g}..{hi * 100:g} cm)"
         )
     return tm, notes
+
+
+def _ray_depths(v: np.ndarray, f: np.ndarray, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """(R,) distance along each ray to the nearest triangle it meets (inf: none); Moller-
+    Trumbore, rays against every triangle (import time only)."""
+    a = v[f[:, 0]]
+    e1, e2 = v[f[:, 1]] - a, v[f[:, 2]] - a  # (F, 3)
+    out = np.full(len(origins), np.inf)
+    for i, (o, d) in enumerate(zip(origins, dirs, strict=True)):
+        p = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, p)
+        ok = np.abs(det) > 1e-15
+        inv = np.divide(1.0, det, out=np.zeros_like(det), where=ok)
+        s = o - a
+        u = np.einsum("ij,ij->i", s, p) * inv
+        q = np.cross(s, e1)
+        w = (q @ d) * inv
+        t = np.einsum("ij,ij->i", e2, q) * inv
+        hit = ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 1e-9)
+        if hit.any():
+            out[i] = float(t[hit].min())
+    return out
+
+
+def pinch_fraction(mesh: Mesh, n: int = 300, rng: np.random.Generator | None = None) -> float:
+    """Fraction of surface samples where the Jaco hand could pinch: straight through the
+    object (along the inward normal) the opposite surface is a width it closes on
+    (``tasks.grasp.MIN_WIDTH_M`` .. ``MAX_WIDTH_M``) and a pad-sized disc (radius
+    ``PAD_HALF_WIDTH_M``) lies flat on the surface around both contacts. 0 for walls thinner
+    than the pads (an L-bracket of 10 mm walls: its wide pairs end on 10 mm faces).
+    """
+    from scipy.spatial import cKDTree
+
+    from mks_sim.geometry.meshes import sample_surface
+    from mks_sim.tasks.grasp import MAX_WIDTH_M, MIN_WIDTH_M, PAD_HALF_WIDTH_M, PROBE_NORMAL_COS
+
+    rng = np.random.default_rng(0) if rng is None else rng
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    pts, nrm = sample_surface(mesh, n, rng=rng)  # (n, 3) each, outward normals
+    width = _ray_depths(v, f, pts - 1e-7 * nrm, -nrm)
+    far = pts - width[:, None] * nrm  # the opposite contact (inf rows where no hit)
+    ok = (width >= MIN_WIDTH_M) & (width <= MAX_WIDTH_M)
+    dense, dense_n = sample_surface(
+        mesh, int(np.clip(mesh.area / 0.0007**2, 2000, 80000)), rng=np.random.default_rng(1)
+    )
+    tree = cKDTree(dense)
+    far_n = dense_n[tree.query(np.where(np.isfinite(far), far, 0.0))[1]]
+    ang = np.arange(8) * np.pi / 4
+    for end, end_n in ((pts, nrm), (far, far_n)):
+        idx = np.flatnonzero(ok)
+        if not len(idx):
+            break
+        # 8 points on the pad's rim in the contact's tangent plane; each must have the
+        # surface, facing the same way, within 1.2 mm (a curved face's sag under a 13 mm
+        # pad is less; a pad overhanging an edge finds the side face or nothing)
+        nn = end_n[idx]
+        u = np.cross(nn, np.where(np.abs(nn[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        w = np.cross(nn, u)
+        rim = PAD_HALF_WIDTH_M * (
+            np.cos(ang)[None, :, None] * u[:, None] + np.sin(ang)[None, :, None] * w[:, None]
+        )  # (k, 8, 3)
+        dist, j = tree.query((end[idx, None] + rim).reshape(-1, 3))
+        cos = np.einsum("ij,ij->i", dense_n[j], np.repeat(nn, 8, axis=0))
+        flat = (dist <= 0.0012) & (cos >= PROBE_NORMAL_COS)
+        ok[idx] = flat.reshape(len(idx), 8).all(axis=1)
+    return float(ok.mean())
 
 
 def planar_fraction(mesh: Mesh, min_facet_fraction: float = 0.02) -> float:
@@ -402,6 +471,14 @@ def add_object(
     tm, notes = check_mesh(tm, mesh_path.name)
     tm.apply_translation(-tm.center_mass)  # body origin at the centre of mass
     mesh = Mesh(np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64))
+    if pinch_fraction(mesh) == 0.0:
+        from mks_sim.tasks.grasp import MIN_WIDTH_M, PAD_HALF_WIDTH_M
+
+        notes.append(
+            f"walls thinner than the pads: no two opposite faces {MIN_WIDTH_M * 1000:.0f} mm "
+            f"or more apart both hold a {2 * PAD_HALF_WIDTH_M * 1000:.0f} mm pad (300 "
+            "surface samples); the Jaco hand is unlikely to hold it"
+        )
     for note in notes:
         warnings.warn(f"{mesh_path.name}: {note}", stacklevel=2)
     out.mkdir(parents=True, exist_ok=True)
