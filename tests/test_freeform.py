@@ -321,3 +321,38 @@ def test_voxel_downsample_keeps_the_first_point_of_each_voxel() -> None:
             seen.setdefault(k, i)
         np.testing.assert_array_equal(voxel_downsample(pts, spacing), sorted(seen.values()))
     assert voxel_downsample(np.zeros((0, 3)), 0.01).shape == (0,)
+
+
+@pytest.mark.parametrize("given_normals", [True, False])
+def test_scene_keypoints_equal_signatures_and_normals_computed_everywhere(
+    given_normals: bool,
+) -> None:
+    # scene_keypoints estimates normals (and convexity) at the keypoints only: the keypoints,
+    # signatures and normals must equal those of computing every subsampled point's normal and
+    # full signature first and choosing keypoints after.
+    from mks_sim.geometry.keypoints import (
+        local_signatures,
+        nms_keypoints,
+        pca_normals_signed,
+        voxel_downsample,
+    )
+
+    model = _model("blob")
+    cfg = model.config
+    assert cfg.spacing is not None and cfg.radii is not None
+    assert cfg.keypoint_radius is not None and cfg.saliency_floor is not None
+    pts, nrm, _ = _scene(blob_mesh(), 11)
+    sub = voxel_downsample(pts, cfg.spacing)
+    p = pts[sub]
+    if given_normals:
+        n = pca_normals_signed(pts, nrm, p, cfg.radii[0])
+    else:
+        n = estimate_normals_pca(p, cfg.radii[0])
+    sig = local_signatures(pts, p, n, cfg.radii)
+    kp = nms_keypoints(p, sig[:, 0] + sig[:, 3], cfg.keypoint_radius, cfg.saliency_floor)
+    kp = kp[np.all(np.isfinite(sig[kp]), axis=1)]
+    idx, got_sig, got_n = model.scene_keypoints(pts, nrm if given_normals else None)
+    assert len(kp) > 20
+    np.testing.assert_array_equal(idx, sub[kp])
+    np.testing.assert_allclose(got_sig, sig[kp], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got_n, n[kp], rtol=0, atol=1e-12)

@@ -25,6 +25,8 @@ from scipy.spatial import cKDTree
 
 __all__ = [
     "SIGNATURE_NAMES",
+    "add_convexity",
+    "ball_signatures",
     "estimate_normals_pca",
     "local_signatures",
     "nms_keypoints",
@@ -152,7 +154,25 @@ def local_signatures(
         radii: the two ball radii (points' units).
         min_count: fewer neighbours than this gives NaN.
     """
+    sig, centroids = ball_signatures(cloud, queries, radii, min_count)
+    return add_convexity(sig, centroids, queries, query_normals, radii)
+
+
+def ball_signatures(
+    cloud: FloatArray,
+    queries: FloatArray,
+    radii: tuple[float, float],
+    min_count: int = 8,
+) -> tuple[FloatArray, FloatArray]:
+    """The normal-free part of :func:`local_signatures`: (Q, 6) signatures whose convexity
+    columns are 0 (NaN rows where a ball is too sparse, as there) and the (2, Q, 3) ball
+    centroids per scale, for :func:`add_convexity`.
+
+    Variation and anisotropy (hence keypoint saliency) need no normals, so keypoints can be
+    chosen first and normals estimated at the keypoints only.
+    """
     out = np.full((len(queries), 6), np.nan)
+    centroids = np.zeros((2, len(queries), 3))
     for s, r in enumerate(radii):
         sub = cloud[voxel_downsample(cloud, r / 4.0)]
         if len(sub) == 0:
@@ -163,12 +183,26 @@ def local_signatures(
         with np.errstate(divide="ignore", invalid="ignore"):
             var = ev[:, 0] / tot
             ani = ev[:, 1] / ev[:, 2]
-        conv = np.einsum("ij,ij->i", queries - c, query_normals) / r
         good = (cnt >= min_count) & (tot > 0)
         out[good, 3 * s] = var[good]
         out[good, 3 * s + 1] = ani[good]
-        out[good, 3 * s + 2] = conv[good]
-    return out
+        out[good, 3 * s + 2] = 0.0
+        centroids[s] = c
+    return out, centroids
+
+
+def add_convexity(
+    sig: FloatArray,
+    centroids: FloatArray,
+    queries: FloatArray,
+    query_normals: FloatArray,
+    radii: tuple[float, float],
+) -> FloatArray:
+    """Fill the convexity columns of :func:`ball_signatures` output in place (and return it):
+    ``(q - c) . n / r`` per scale; NaN rows stay NaN."""
+    for s, r in enumerate(radii):
+        sig[:, 3 * s + 2] += np.einsum("ij,ij->i", queries - centroids[s], query_normals) / r
+    return sig
 
 
 def nms_keypoints(

@@ -52,6 +52,8 @@ from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError
 from mks_sim.geometry.keypoints import (
+    add_convexity,
+    ball_signatures,
     estimate_normals_pca,
     local_signatures,
     nms_keypoints,
@@ -603,11 +605,9 @@ class FreeformModel:
         assert cfg.spacing is not None and cfg.radii is not None and cfg.keypoint_radius is not None
         sub = voxel_downsample(scene_points, cfg.spacing)
         p = scene_points[sub]
-        if scene_normals is None:
-            n = estimate_normals_pca(p, cfg.radii[0])
-        else:
-            n = pca_normals_signed(scene_points, scene_normals, p, cfg.radii[0])
-        sig = local_signatures(scene_points, p, n, cfg.radii)
+        # Saliency needs no normals: keypoints first, normals (and convexity) at keypoints only
+        # (the same values as computing them everywhere; a tenth of the PCA work).
+        sig, centroids = ball_signatures(scene_points, p, cfg.radii)
         assert cfg.saliency_floor is not None
         sal = _saliency(sig)
         kp = nms_keypoints(p, sal, cfg.keypoint_radius, cfg.saliency_floor)
@@ -616,7 +616,13 @@ class FreeformModel:
             # the most salient (noise raises every point's variation; the pairing consistency
             # matrix grows with the square of the keypoints)
             kp = np.sort(kp[np.argsort(-sal[kp], kind="stable")[: cfg.max_keypoints]])
-        return sub[kp], sig[kp], n[kp]
+        if scene_normals is None:
+            # oriented away from the centroid of the whole subsample: estimated on all of it
+            n = estimate_normals_pca(p, cfg.radii[0])[kp]
+        else:
+            n = pca_normals_signed(scene_points, scene_normals, p[kp], cfg.radii[0])
+        sig = add_convexity(sig[kp], centroids[:, kp], p[kp], n, cfg.radii)
+        return sub[kp], sig, n
 
     def detect(
         self,
@@ -774,7 +780,9 @@ class FreeformModel:
                 matrix[:3, :3] = rm
                 matrix[:3, 3] = p0 - rm @ self.reference_point
                 # distinct (scene, model) pairs, sorted, through one integer key each
-                pk = np.unique(scene_index[tri[mm]].ravel() * n_model + model_index[tri[mm]].ravel())
+                pk = np.unique(
+                    scene_index[tri[mm]].ravel() * n_model + model_index[tri[mm]].ravel()
+                )
                 pairs = np.stack([pk // n_model, pk % n_model], 1)
                 out.append(
                     PoseHypothesis(
