@@ -152,3 +152,31 @@ def test_bin_text_reports_name_failed_devices_and_alternates():
         "fault: range_finder: failed", "fault: wrist_camera: x",
         "warning: Fused_Points ran on alternate Stereo_View",
     ]
+
+
+def test_prior_poses_are_checked_kept_once_and_wrong_ones_dropped():
+    # An earlier view's estimates (active sensing): the true poses off by 2 mm / 2 deg are
+    # polished and kept without any voting (max_passes=0), a repeat of one is not reported
+    # twice, and poses the points contradict -- floating over empty table, sunk through the
+    # table -- are dropped.
+    model = instance_model("part")
+    pts = _scan(POSES)
+    near = []
+    for G in POSES:
+        T = G.copy()
+        T[:3, :3] = _pose(0.0, 0.0, 2.0)[:3, :3] @ G[:3, :3]
+        T[:3, 3] += [0.002, 0.0, 0.0]
+        near.append(T)
+    floating = _pose(0.15, 0.15, 0.0)
+    sunk = _pose(0.0, -0.06, 0.0, z=TABLE_Z - 0.01)
+    prior = [near[0], POSES[0], floating, near[1], sunk, near[2]]
+    result = localize_all(
+        model, pts, table=TABLE, rng=np.random.default_rng(0), prior=prior, max_passes=0
+    )
+    found = [i.matrix for i in result.instances]
+    assert len(found) == 3, [np.round(T[:3, 3], 3) for T in found]
+    for mm, deg in _errors(found, POSES):
+        assert mm < 1.0 and deg < 1.0, (mm, deg)
+    # and with voting, the priors do not come back twice
+    again = localize_all(model, pts, table=TABLE, rng=np.random.default_rng(0), prior=prior)
+    assert again.found == 3
