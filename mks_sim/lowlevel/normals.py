@@ -161,16 +161,20 @@ def _ring_matrix(graph: GraphLike, rings: int) -> sparse.csr_array:
 
 
 def _pca_sparse(pts: FloatArray, A: sparse.csr_array) -> tuple[FloatArray, FloatArray]:
-    """Normals and surface variation of every neighbourhood (rows of ``A``) from first and
-    second moments accumulated by sparse products (no (N, K, 3) gather)."""
+    """Normals and surface variation of every neighbourhood (rows of ``A``)."""
+    return _smallest_eigen(_sparse_cov(pts, A))
+
+
+def _sparse_cov(pts: FloatArray, A: sparse.csr_array) -> FloatArray:
+    """(N, 6) covariances (xx xy xz yy yz zz) of every neighbourhood (rows of ``A``) from
+    first and second moments accumulated by sparse products (no (N, K, 3) gather)."""
     c = pts - pts.mean(axis=0)  # centred: the moments do not cancel catastrophically
     cnt = np.asarray(A.sum(axis=1)).reshape(-1)
     mean = (A @ c) / cnt[:, None]
     iu = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))
     prod = c[:, iu[0]] * c[:, iu[1]]  # (N, 6)
     second = (A @ prod) / cnt[:, None]
-    cov = second - mean[:, iu[0]] * mean[:, iu[1]]  # (N, 6): xx xy xz yy yz zz
-    return _smallest_eigen(cov)
+    return second - mean[:, iu[0]] * mean[:, iu[1]]  # (N, 6): xx xy xz yy yz zz
 
 
 #: Points from which multi-ring neighbourhoods use the compiled kernel (when numba imports).
@@ -178,30 +182,36 @@ _COMPILED_MIN_POINTS = 500
 
 
 def _ring_pca(pts: FloatArray, graph: GraphLike, rings: int) -> tuple[FloatArray, FloatArray]:
-    """Normals and surface variation over the neighbourhoods of ``rings`` SPG rings: one
-    sparse product for ring 1; more rings by the compiled breadth-first kernel
+    """Normals and surface variation over the neighbourhoods of ``rings`` SPG rings."""
+    return _smallest_eigen(_ring_cov(pts, graph, rings))
+
+
+def _ring_cov(pts: FloatArray, graph: GraphLike, rings: int) -> FloatArray:
+    """(N, 6) covariances of the neighbourhoods of ``rings`` SPG rings: one sparse product
+    for ring 1; more rings by the compiled breadth-first kernel
     (:func:`mks_sim.lowlevel._regions_kernels.ring_moments`, no (N, N) ring matrix) when
-    numba imports, else by :func:`_pca_sparse` over :func:`_ring_matrix` (the reference)."""
+    numba imports, else by :func:`_sparse_cov` over :func:`_ring_matrix` (the reference)."""
     from mks_sim.lowlevel import _gridknn
 
     if rings < 2 or len(pts) < _COMPILED_MIN_POINTS or not _gridknn.available():
-        return _pca_sparse(pts, _ring_matrix(graph, rings))
+        return _sparse_cov(pts, _ring_matrix(graph, rings))
     from mks_sim.lowlevel._regions_kernels import ring_moments
 
     sym = symmetric_adjacency(graph)
     c = np.ascontiguousarray(pts - pts.mean(axis=0), dtype=np.float64)
-    cov = ring_moments(sym.indptr.astype(np.int64), sym.indices.astype(np.int64), c, rings)
-    return _smallest_eigen(cov)
+    out: FloatArray = ring_moments(
+        sym.indptr.astype(np.int64), sym.indices.astype(np.int64), c, rings
+    )
+    return out
 
 
-def _smallest_eigen(cov: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Closed-form eigen-analysis of N symmetric 3x3 matrices given as (N, 6) upper
-    triangles: the unit eigenvector of the smallest eigenvalue and ``lambda_0 / trace``.
-
-    Eigenvalues by the trigonometric solution of the characteristic cubic; the eigenvector
-    as the largest cross product of two rows of ``C - lambda_0 I``. Isotropic or degenerate
-    neighbourhoods fall back to ``numpy.linalg.eigh``.
-    """
+def _smallest_eigenvalue(
+    cov: FloatArray,
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], FloatArray]:
+    """``(lambda_0, q, safe, variation)`` of N symmetric 3x3 matrices given as (N, 6) upper
+    triangles: the smallest eigenvalue by the trigonometric solution of the characteristic
+    cubic, a third of the trace, where the solution applies (not isotropic), and the
+    surface variation ``lambda_0 / trace``."""
     a00, a01, a02, a11, a12, a22 = cov.T
     q = (a00 + a11 + a22) / 3.0
     p1 = a01**2 + a02**2 + a12**2
@@ -218,6 +228,19 @@ def _smallest_eigen(cov: FloatArray) -> tuple[FloatArray, FloatArray]:
     lam0 = np.where(safe, q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0), q)
     total = 3.0 * q
     curvature = np.divide(np.clip(lam0, 0.0, None), total, out=np.zeros(len(cov)), where=total > 0)
+    return lam0, q, safe, curvature
+
+
+def _smallest_eigen(cov: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Closed-form eigen-analysis of N symmetric 3x3 matrices given as (N, 6) upper
+    triangles: the unit eigenvector of the smallest eigenvalue and ``lambda_0 / trace``.
+
+    Eigenvalues by :func:`_smallest_eigenvalue`; the eigenvector as the largest cross
+    product of two rows of ``C - lambda_0 I``. Isotropic or degenerate neighbourhoods fall
+    back to ``numpy.linalg.eigh``.
+    """
+    lam0, q, safe, curvature = _smallest_eigenvalue(cov)
+    a00, a01, a02, a11, a12, a22 = cov.T
     r0 = np.stack([a00 - lam0, a01, a02], axis=1)
     r1 = np.stack([a01, a11 - lam0, a12], axis=1)
     r2 = np.stack([a02, a12, a22 - lam0], axis=1)
@@ -272,8 +295,8 @@ def estimate_normals(
     pts = as_points(points, "estimate_normals: points", min_points=3)
     graph = FixedGraph.of(graph if graph is not None else SpatialProximityGraph(pts, m=m))
     normals, curvature = _ring_pca(pts, graph, normal_rings)
-    if curvature_rings != normal_rings:
-        _, curvature = _ring_pca(pts, graph, curvature_rings)
+    if curvature_rings != normal_rings:  # the variation alone: no eigenvectors
+        curvature = _smallest_eigenvalue(_ring_cov(pts, graph, curvature_rings))[3]
     if viewpoint is not None:
         vp = np.asarray(viewpoint, dtype=np.float64).reshape(3)
         toward = vp[None, :] - pts
