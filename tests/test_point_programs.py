@@ -127,6 +127,23 @@ def test_postprocess_voxel_keeps_one_point_per_voxel() -> None:
     np.testing.assert_array_equal(out, pts[[0, 2]])
 
 
+def test_postprocess_voxel_matches_brute_force_first_point_per_cell() -> None:
+    """A workspace-sized cloud (negative coordinates, several points per cell) keeps exactly
+    the first point of each cell, in input order, as a per-point scan of cells does."""
+    rng = np.random.default_rng(7)
+    pts = rng.uniform([-0.3, -0.3, 0.74], [0.3, 0.3, 1.0], (3000, 3))
+    pts = np.vstack([pts, pts[:1500] + 1e-4])[rng.permutation(4500)]
+    out = postprocess(pts, {"voxel_m": 0.02})
+    seen: set[tuple[int, ...]] = set()
+    want = []
+    for p in pts:
+        cell = tuple(int(v) for v in np.floor(p / 0.02))
+        if cell not in seen:
+            seen.add(cell)
+            want.append(p)
+    np.testing.assert_array_equal(out, np.array(want))
+
+
 # --- touch -----------------------------------------------------------------------------------
 
 
