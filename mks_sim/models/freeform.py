@@ -181,7 +181,10 @@ def _triangle_rigid(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, Float
     agrees (every congruent pair; the tests compare both); degenerate (collinear) triangles
     fall back to it.
     """
-    cs, cd = src.mean(axis=1), dst.mean(axis=1)
+    # Sums over axes of length 3 written out: numpy's reductions cost more than the
+    # arithmetic at this size, and the sums are the same (left to right).
+    cs = (src[:, 0] + src[:, 1] + src[:, 2]) / 3.0
+    cd = (dst[:, 0] + dst[:, 1] + dst[:, 2]) / 3.0
     a, b = src - cs[:, None], dst - cd[:, None]
 
     def frame(x: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -195,9 +198,10 @@ def _triangle_rigid(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, Float
     fs, ns = frame(a)
     fd, nd = frame(b)
     # in-plane coordinates (T, 3) of each triangle in its own frame
-    ax, ay = (a * fs[:, None, 0]).sum(axis=2), (a * fs[:, None, 1]).sum(axis=2)
-    bx, by = (b * fd[:, None, 0]).sum(axis=2), (b * fd[:, None, 1]).sum(axis=2)
-    phi = np.arctan2((ax * by - ay * bx).sum(axis=1), (ax * bx + ay * by).sum(axis=1))
+    ax, ay = _dot3(a, fs[:, None, 0]), _dot3(a, fs[:, None, 1])
+    bx, by = _dot3(b, fd[:, None, 0]), _dot3(b, fd[:, None, 1])
+    cross, dot = ax * by - ay * bx, ax * bx + ay * by
+    phi = np.arctan2(cross[:, 0] + cross[:, 1] + cross[:, 2], dot[:, 0] + dot[:, 1] + dot[:, 2])
     co, si = np.cos(phi)[:, None], np.sin(phi)[:, None]
     # R = Fd^T Rz(phi) Fs as a sum of outer products (elementwise: no batched einsum)
     m0 = co * fs[:, 0] - si * fs[:, 1]
@@ -211,8 +215,13 @@ def _triangle_rigid(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, Float
     bad = (ns <= 1e-9 * scale**2) | (nd <= 1e-9 * scale**2)
     if bad.any():
         r[bad] = _batched_rigid(src[bad], dst[bad])[0]
-    t = cd - (r * cs[:, None, :]).sum(axis=2)
+    t = cd - _dot3(r, cs[:, None, :])
     return r, t
+
+
+def _dot3(x: FloatArray, y: FloatArray) -> FloatArray:
+    """``(x * y).sum(axis=-1)`` for a last axis of length 3 (same sum order, no reduction)."""
+    return x[..., 0] * y[..., 0] + x[..., 1] * y[..., 1] + x[..., 2] * y[..., 2]
 
 
 def _batched_rigid(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -825,7 +834,10 @@ def _first_distinct(
 
 def _triangles(cons: NDArray[np.bool_], cap: int, rng: np.random.Generator) -> NDArray[np.int64]:
     """(T, 3) index triples a < b < c with all three pairs consistent (at most ``cap``)."""
-    a, b = np.nonzero(np.triu(cons, 1))
+    # (np.triu would build a C x C mask and a copy first; the filter keeps row-major order)
+    a, b = np.nonzero(cons)
+    upper = a < b
+    a, b = a[upper], b[upper]
     if len(a) == 0:
         return np.zeros((0, 3), np.int64)
     # Expected triangle count ~ edges * mean degree; thin the edge list to stay near the cap.
