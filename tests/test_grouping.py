@@ -317,3 +317,32 @@ def test_warm_up_kernels_says_whether_the_compiled_paths_run() -> None:
     from mks_sim.lowlevel.regions import warm_up_kernels
 
     assert warm_up_kernels() is _gridknn.available()
+
+
+def test_no_writable_numba_cache_falls_back_to_numpy_paths() -> None:
+    """Where numba finds no writable cache folder it refuses to define ``cache=True`` kernels
+    (RuntimeError at import): the low level then runs its numpy paths, with the same regions,
+    instead of failing (a fresh process, with numba's cache locators emptied)."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("numba")
+    code = """
+import numpy as np
+from numba.core import caching
+impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")
+impl._locator_classes = []  # no writable place for machine code
+from mks_sim.lowlevel import _gridknn
+from mks_sim.lowlevel.regions import segment_surfaces, warm_up_kernels
+assert warm_up_kernels() is False and _gridknn.available() is False
+rng = np.random.default_rng(0)
+u = rng.uniform(-1, 1, (2, 900))
+pts = np.concatenate([np.c_[u[0], u[1], np.zeros(900)], np.c_[u[0], np.zeros(900), u[1] + 1.2]])
+seg = segment_surfaces(pts, m=12)
+print(len(seg.planes))
+"""
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=False
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split()[-1] == "2"

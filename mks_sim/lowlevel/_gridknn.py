@@ -24,6 +24,7 @@ numba is imported lazily (only when this path runs); :func:`available` says whet
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 from typing import Any
@@ -33,7 +34,10 @@ from numpy.typing import NDArray
 
 __all__ = ["available", "grid_knn"]
 
+log = logging.getLogger(__name__)
 _lock = threading.Lock()
+#: Why the compiled kernels cannot be defined in this process (None: not known to fail).
+_unavailable: str | None = None
 _kernels: dict[str, Any] = {}
 # Blocks with more candidates than this are left to the tree (a crowded cell would make the
 # all-pairs work of the block quadratic).
@@ -44,10 +48,24 @@ _RINGS = (1, 2)
 
 
 def available() -> bool:
-    """True when numba can be imported (the grid path is then usable)."""
+    """True when numba can be imported and can cache machine code here (the compiled paths
+    of the low level are then usable).
+
+    The kernels are ``cache=True``: numba keeps their machine code in the package's
+    ``__pycache__`` or, when that is read-only (an installed package), in the user's cache
+    folder (``NUMBA_CACHE_DIR`` overrides both). Where neither can be written numba refuses
+    to define a caching kernel (RuntimeError at import): the numpy paths run instead.
+    """
+    global _unavailable
+    if _unavailable is not None:
+        return False
     try:
         _load()
     except ImportError:
+        return False
+    except RuntimeError as exc:  # numba: "cannot cache function ...: no locator available"
+        _unavailable = str(exc)
+        log.warning("compiled kernels unavailable, numpy paths run: %s", exc)
         return False
     return True
 
