@@ -1,4 +1,4 @@
-"""Env throughput: ``mks_sim/Grasp-v1`` against gymnasium-robotics ``FetchPickAndPlace-v4``
+"""Env throughput: ``mks_sim/Grasp-v2`` against gymnasium-robotics ``FetchPickAndPlace-v4``
 and dm_control's ``lift_brick_features`` / ``lift_brick_vision``, in one run.
 
 Random actions; each env without a camera and with one 84x84 camera (ours: the overhead
@@ -33,8 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _provenance import header_lines  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
-OUR_ENV = "mks_sim/Grasp-v1"
-OUR_SLEEP = f"{OUR_ENV} sleep=True"  # resting bodies sleep (opt-in; docs/env.md "Speed")
+OUR_ENV = "mks_sim/Grasp-v2"  # as made by default: resting bodies sleep (docs/env.md "Speed")
+OUR_AWAKE = f"{OUR_ENV} sleep=False"  # every body simulated every step (the former default)
 CAMERA = 84  # pixels, square, as dm_control's vision tasks
 
 
@@ -80,7 +80,7 @@ def _loop(
     return step_s, resets, reset_s
 
 
-def bench_ours(n: int, camera: bool, seed: int, sleep: bool = False) -> Row:
+def bench_ours(n: int, camera: bool, seed: int, sleep: bool = True) -> Row:
     import gymnasium as gym
 
     import mks_sim  # noqa: F401  (registers the envs)
@@ -104,7 +104,7 @@ def bench_ours(n: int, camera: bool, seed: int, sleep: bool = False) -> Row:
     finally:
         env.close()
     note = f"reset: localization {np.mean(loc):.2f} s, rest {reset_s / resets - np.mean(loc):.2f} s"
-    return Row(OUR_SLEEP if sleep else OUR_ENV, _cam(camera), n, step_s, dt, resets, reset_s, note)
+    return Row(OUR_ENV if sleep else OUR_AWAKE, _cam(camera), n, step_s, dt, resets, reset_s, note)
 
 
 def _fix_gymnasium_robotics() -> None:
@@ -222,8 +222,8 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[Row] = []
     for camera in (False, True):
         benches: list[Callable[[int, bool, int], Row]] = [bench_ours]
-        if not camera:  # sleeping saves physics time, which a camera step does not spend
-            benches.append(lambda n, camera, seed: bench_ours(n, camera, seed, sleep=True))
+        if not camera:  # awake for comparison; a camera step's time is rendering, not physics
+            benches.append(lambda n, camera, seed: bench_ours(n, camera, seed, sleep=False))
         for bench in (*benches, bench_fetch, bench_dm_control):
             row = bench(n, camera, args.seed)
             rows.append(row)
@@ -268,11 +268,12 @@ def _write(
             f"- camera {camera}: ours / Fetch = {ratio:.2f} sim-s per wall-s "
             f"(goal >= {factor:g}: {met})"
         )
-        slept = next((r for r in rows if r.camera == camera and r.name == OUR_SLEEP), None)
-        if slept is not None:
+        awake = next((r for r in rows if r.camera == camera and r.name == OUR_AWAKE), None)
+        if awake is not None:
+            met = "met" if awake.sim_per_wall >= factor * fetch.sim_per_wall else "NOT met"
             goals.append(
-                f"  - with `sleep=True`: {slept.sim_per_wall / fetch.sim_per_wall:.2f} "
-                f"(goal >= {factor:g}: {'met' if slept.sim_per_wall >= factor * fetch.sim_per_wall else 'NOT met'})"
+                f"  - with `sleep=False`: {awake.sim_per_wall / fetch.sim_per_wall:.2f} "
+                f"(goal >= {factor:g}: {met})"
             )
     lines += ["", "Goals:", "", *goals, ""]
     if not vector:
