@@ -204,14 +204,10 @@ def polyhedral_candidates(
     Returns:
         (hypotheses, segment index of each).
     """
-    from mks_sim.models.refine import verify_hypotheses
-
     timing = {} if timing is None else timing
     surface = model.surface
     syms = model.symmetries()
     spacing = rep.spacing
-    from mks_sim.localization.verify import surface_coverage
-
     # the model's area: uniform samples have a median nearest-neighbour distance of
     # 0.47 / sqrt(density)
     model_area = len(surface.points) * (surface.spacing / 0.47) ** 2
@@ -229,64 +225,29 @@ def polyhedral_candidates(
             model, seg.vertexes, seg_pts, vote_distance=4 * spacing, rotinv=rotinv
         )
         t_hyp += time.perf_counter() - t
-        t = time.perf_counter()
-        verified = verify_hypotheses(
+        pairs_of = functools.partial(_table_plane_pairs, seg, rep.objects, rep.table)
+        scored, dt_h, dt_v = _segment_verified(
+            model,
             hyps,
-            surface,
             seg_pts,
-            inlier_distance=inlier,
-            symmetries=syms,
+            pairs_of,
+            inlier=inlier,
+            cover_distance=max(inlier, 1.5 * spacing, rep.voxel),
+            min_score=min_score,
             max_icp=max_icp,
-            prescreen=prescreen,
-            full_refine=2,
-            max_scene_points=ICP_POINTS,
-            coarse_points=COARSE_POINTS,
+            verify_options={
+                "prescreen": prescreen,
+                "full_refine": 2,
+                "max_scene_points": ICP_POINTS,
+                "coarse_points": COARSE_POINTS,
+            },
             rng=rng,
+            surface=surface,
+            symmetries=syms,
         )
-        t_ver += time.perf_counter() - t
-        best = verified[0].hypothesis.score if verified else 0.0
-        if best < min_score and seg.planes:
-            t = time.perf_counter()
-            pairs: list[tuple[Any, FloatArray | None]] = [
-                (r.plane, rep.objects[r.indices]) for r in _diverse_planes(list(seg.planes))
-            ]
-            if seg.on_table and rep.table is not None:
-                pairs.append((rep.table.flipped(), None))
-            try:
-                coarse = plane_pair_hypotheses(model, pairs, seg_pts, inlier_distance=inlier)
-            except DataError as exc:
-                log.info("plane-pair hypotheses failed: %s", exc)
-                coarse = []
-            t_hyp += time.perf_counter() - t
-            t = time.perf_counter()
-            verified += verify_hypotheses(
-                coarse,
-                surface,
-                seg_pts,
-                inlier_distance=inlier,
-                icp_distance=max(4 * inlier, 0.1 * surface.size),
-                symmetries=syms,
-                max_icp=max(4, max_icp // 2),
-                prescreen=prescreen,
-                full_refine=2,
-                max_scene_points=ICP_POINTS,
-                coarse_points=COARSE_POINTS,
-                rng=rng,
-            )
-            t_ver += time.perf_counter() - t
-        # coverage of the model's surface at its own sampling: density independent
-        if verified:
-            from scipy.spatial import cKDTree
-
-            cover = surface_coverage(
-                surface.points,
-                np.stack([v.hypothesis.matrix for v in verified]),
-                cKDTree(seg_pts),
-                max(inlier, 1.5 * spacing, rep.voxel),
-            )
-        for k, v in enumerate(verified):
-            coverage = min(1.0, float(cover[k]) / VISIBLE_FRACTION)
-            results.append((replace(v.hypothesis, score=v.hypothesis.score * coverage), si))
+        t_hyp += dt_h
+        t_ver += dt_v
+        results.extend((h, si) for h, _ in scored)
     results.sort(key=lambda r: (-r[0].score, r[0].rmse))
     results = results[:max_hypotheses]
     timing["hypotheses"] = timing.get("hypotheses", 0.0) + t_hyp
@@ -294,8 +255,119 @@ def polyhedral_candidates(
     return [r[0] for r in results], [r[1] for r in results]
 
 
-# --------------------------------------------------------------------------- one cloud
+def _table_plane_pairs(
+    seg: Segment, objects: FloatArray, table: Plane | None
+) -> list[tuple[Plane, FloatArray | None]]:
+    """Plane pairs of a representation segment (its diverse planes, the table flipped when
+    it rests on it; none when it has no planes); the planes' indices are into ``objects``."""
+    if not seg.planes:
+        return []
+    pairs: list[tuple[Plane, FloatArray | None]] = [
+        (r.plane, objects[r.indices]) for r in _diverse_planes(list(seg.planes))
+    ]
+    if seg.on_table and table is not None:
+        pairs.append((table.flipped(), None))
+    return pairs
 
+
+def _segment_plane_pairs(
+    rep: SegmentReport, seg_pts: FloatArray, table: Plane | None
+) -> list[tuple[Plane, FloatArray | None]]:
+    """Plane pairs of a :func:`localize_cloud` segment (plane indices into ``seg_pts``; none
+    when it has no planes)."""
+    if not rep.planes:
+        return []
+    pairs: list[tuple[Plane, FloatArray | None]] = [
+        (r.plane, seg_pts[r.indices]) for r in _diverse_planes(list(rep.planes))
+    ]
+    if rep.on_table and table is not None:
+        pairs.append((table.flipped(), None))
+    return pairs
+
+
+def _segment_verified(
+    model: Any,
+    hyps: list[PoseHypothesis],
+    seg_pts: FloatArray,
+    plane_pairs: Any,
+    *,
+    inlier: float,
+    cover_distance: float,
+    min_score: float,
+    max_icp: int,
+    verify_options: dict[str, Any],
+    rng: np.random.Generator,
+    surface: ModelSurface,
+    symmetries: Any,
+) -> tuple[list[tuple[PoseHypothesis, Any]], float, float]:
+    """One segment's verification: the hypotheses refined and scored; when the best scores
+    under ``min_score`` and ``model`` is polyhedral (not None), plane-pair hypotheses
+    (``plane_pairs()``: too few vertexes visible) refined too; every score multiplied by
+    the coverage of the model's surface (its fixed sampling within ``cover_distance`` of a
+    segment point, over :data:`VISIBLE_FRACTION`; density independent).
+
+    Returns:
+        ((hypothesis with the coverage-weighted score, its VerifiedHypothesis) pairs,
+        seconds of hypothesis generation, seconds of verification).
+    """
+    from mks_sim.localization.verify import surface_coverage
+
+    syms = symmetries
+    t = time.perf_counter()
+    verified = verify_hypotheses(
+        hyps,
+        surface,
+        seg_pts,
+        inlier_distance=inlier,
+        symmetries=syms,
+        max_icp=max_icp,
+        rng=rng,
+        **verify_options,
+    )
+    t_ver = time.perf_counter() - t
+    t_hyp = 0.0
+    best = verified[0].hypothesis.score if verified else 0.0
+    if model is not None and best < min_score:
+        t = time.perf_counter()
+        pairs = plane_pairs()
+        coarse: list[PoseHypothesis] = []
+        if pairs:
+            try:
+                coarse = plane_pair_hypotheses(model, pairs, seg_pts, inlier_distance=inlier)
+            except DataError as exc:
+                log.info("plane-pair hypotheses failed: %s", exc)
+        t_hyp += time.perf_counter() - t
+        t = time.perf_counter()
+        verified += verify_hypotheses(
+            coarse,
+            surface,
+            seg_pts,
+            inlier_distance=inlier,
+            icp_distance=max(4 * inlier, 0.1 * surface.size),
+            symmetries=syms,
+            max_icp=max(4, max_icp // 2),
+            rng=rng,
+            **verify_options,
+        )
+        t_ver += time.perf_counter() - t
+    if not verified:
+        return [], t_hyp, t_ver
+    # Coverage: a pose must show about as much of the model's surface as one view does, or
+    # a small segment (clutter, a fragment) that a piece of the model fits would win.
+    cover = surface_coverage(
+        surface.points,
+        np.stack([v.hypothesis.matrix for v in verified]),
+        cKDTree(seg_pts),
+        cover_distance,
+    )
+    out = []
+    for k, v in enumerate(verified):
+        coverage = min(1.0, float(cover[k]) / VISIBLE_FRACTION)
+        out.append((replace(v.hypothesis, score=v.hypothesis.score * coverage), v))
+    return out, t_hyp, t_ver
+
+
+# --------------------------------------------------------------------------- one cloud
 
 
 # --------------------------------------------------------------------------- the pipeline
@@ -549,9 +621,6 @@ def localize_cloud(
     t_refine = 0.0
     results: list[tuple[PoseHypothesis, FloatArray, float, int]] = []
     syms = loc_model.symmetries()
-    # Uniform random samples: median nearest-neighbour distance = 0.47 / sqrt(density).
-    from mks_sim.localization.verify import surface_coverage
-
     for si, (seg_pts, seg) in enumerate(seg_data):
         rep = segments[si]
         noise = float(np.median([p.plane.rmse for p in rep.planes])) if rep.planes else 0.0
@@ -562,54 +631,25 @@ def localize_cloud(
         else:
             hyps = loc_model.hypotheses(seg_pts, None if seg is None else seg.normals)
         t_match += time.perf_counter() - t
-        t = time.perf_counter()
-        verified = verify_hypotheses(
+        polyhedral = isinstance(loc_model, PolyhedralModel)
+        pairs_of = functools.partial(_segment_plane_pairs, rep, seg_pts, table_plane)
+        scored, dt_h, dt_v = _segment_verified(
+            loc_model if polyhedral else None,
             hyps,
-            surface,
             seg_pts,
-            inlier_distance=inlier,
-            symmetries=syms,
+            pairs_of,
+            inlier=inlier,
+            cover_distance=max(inlier, 1.5 * spacing, voxel_size),
+            min_score=min_score,
             max_icp=max_icp,
+            verify_options={},
             rng=rng,
+            surface=surface,
+            symmetries=syms,
         )
-        t_refine += time.perf_counter() - t
-        best_score = verified[0].hypothesis.score if verified else 0.0
-        if isinstance(loc_model, PolyhedralModel) and best_score < min_score and rep.planes:
-            # Too few vertexes visible: hypotheses from pairs of planes (and the table).
-            t = time.perf_counter()
-            pairs: list[tuple[Plane, FloatArray | None]] = [
-                (r.plane, seg_pts[r.indices]) for r in _diverse_planes(rep.planes)
-            ]
-            if rep.on_table and table_plane is not None:
-                pairs.append((table_plane.flipped(), None))
-            coarse = plane_pair_hypotheses(loc_model, pairs, seg_pts, inlier_distance=inlier)
-            t_match += time.perf_counter() - t
-            t = time.perf_counter()
-            verified += verify_hypotheses(
-                coarse,
-                surface,
-                seg_pts,
-                inlier_distance=inlier,
-                icp_distance=max(4 * inlier, 0.1 * surface.size),
-                symmetries=syms,
-                max_icp=max(4, max_icp // 2),
-                rng=rng,
-            )
-            t_refine += time.perf_counter() - t
-        # Coverage: a pose must show about as much of the model's surface as one view does,
-        # or a small segment (clutter, a fragment) that a piece of the model fits would win.
-        # Counted on the model's fixed sampling (not in scene points): density independent.
-        if verified:
-            cover = surface_coverage(
-                surface.points,
-                np.stack([v.hypothesis.matrix for v in verified]),
-                cKDTree(seg_pts),
-                max(inlier, 1.5 * spacing, voxel_size),
-            )
-        for k, v in enumerate(verified):
-            coverage = min(1.0, float(cover[k]) / VISIBLE_FRACTION)
-            h = replace(v.hypothesis, score=v.hypothesis.score * coverage)
-            results.append((h, v.equivalents, v.inlier_fraction, si))
+        t_match += dt_h
+        t_refine += dt_v
+        results.extend((h, v.equivalents, v.inlier_fraction, si) for h, v in scored)
     results.sort(key=lambda r: (-r[0].score, r[0].rmse))
     results = results[:max_hypotheses]
     if voxel_size > 0 and results:
