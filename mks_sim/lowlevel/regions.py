@@ -240,9 +240,6 @@ def fit_sphere(points: ArrayLike) -> SphereFit:
     if not np.isfinite(r2) or r2 <= 0:
         raise DataError("fit_sphere: points do not determine a sphere (coplanar or too few)")
 
-    def residual(x: FloatArray) -> FloatArray:
-        return np.linalg.norm(pts - x[:3], axis=1) - x[3]
-
     # Levenberg-Marquardt on the radial residuals (4 unknowns: a few 4x4 solves, no scipy
     # driver overhead); starts at the algebraic fit, which is already close.
     x = np.append(center0, np.sqrt(r2))
@@ -277,7 +274,7 @@ def fit_sphere(points: ArrayLike) -> SphereFit:
         if converged:
             break
     center, radius = x[:3], abs(float(x[3]))
-    rmse = float(np.sqrt(np.mean(residual(x) ** 2)))
+    rmse = float(np.sqrt(np.mean(res**2)))  # res: the radial residuals of the final x
     return SphereFit(center=center, radius=radius, rmse=rmse)
 
 
