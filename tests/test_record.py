@@ -44,7 +44,9 @@ def test_load_dataset_reads_it_back(recorded: Path, monkeypatch: pytest.MonkeyPa
     assert ds.env_spec.kwargs["faults"] == ["range_finder"]
     assert ds.env_spec.max_episode_steps == 12
     ep = ds[0]
-    assert ep.actions.shape == (12, 5)
+    assert meta["mks_sim_env_id"] == "mks_sim/Grasp-v2"  # the newest env by default
+    assert ep.actions.shape == (12, 7)  # v2: dx, dy, dz, drx, dry, drz, grip
+    assert ep.observations["pinch_rotation"].shape == (13, 3, 3)
     assert ep.rewards.shape == ep.terminations.shape == ep.truncations.shape == (12,)
     assert ep.truncations[-1] and not ep.terminations.any()
     assert ep.observations["pose_estimate"].shape == (13, 4, 4)
@@ -142,7 +144,9 @@ def test_record_dir_is_checked_before_any_episode(tmp_path: Path, capsys) -> Non
 
 def test_minari_missing_names_the_extra(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     monkeypatch.setitem(sys.modules, "minari", None)
-    with pytest.raises(MksError, match=r"Minari is not installed; run pip install 'mks-sim\[record\]'"):
+    with pytest.raises(
+        MksError, match=r"Minari is not installed; run pip install 'mks-sim\[record\]'"
+    ):
         check_record_dir(tmp_path / "grasp-cube-v0")
 
 
