@@ -54,7 +54,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from mks_sim.errors import MksError, NotFound, SensorFailure
+from mks_sim.errors import NotFound, SensorFailure, SpecError
 from mks_sim.localization.model import PolyhedralModel, db_for, default_db, model_kind
 from mks_sim.localization.pipeline import localize_polyhedral, localize_sphere
 from mks_sim.localization.representation import RepresentationConfig
@@ -95,7 +95,6 @@ def workstation_representation(graph: SensorGraph | None = None) -> Representati
     Raises:
         SpecError: the sensor has no ``table_z_m`` parameter (a sensor calibration value).
     """
-    from mks_sim.errors import SpecError
 
     graph = graph if graph is not None else _default_graph()
     spec = graph.sensor(REPRESENTATION_SENSOR)
@@ -343,6 +342,8 @@ def localize_object(
 
     Raises:
         NotFound: unknown object name.
+        SpecError: the object's model names a logical sensor the graph does not define
+            (before any device is read).
         SensorFailure: the points sensor and all its alternates failed.
     """
     del world  # sensing goes through the devices only; never ground truth
@@ -356,14 +357,17 @@ def localize_object(
     model_name, model, sensor, source, entry = _resolve_model(object_name, db, models)
     timing["model"] = time.perf_counter() - t
     diag: dict[str, Any] = {"model": model_name, "model_source": source, "sensor": sensor}
+    try:  # a model naming a sensor the graph does not know is a bad model, not a fault
+        diag["sensors_required"] = sorted(graph.required([sensor]))
+    except NotFound:
+        raise SpecError(
+            f"object {object_name!r}: its model names logical sensor {sensor!r}, "
+            f"which the sensor graph does not define"
+        ) from None
 
     # 2. activate only the logical sensors the model needs
     t = time.perf_counter()
     snap = graph.snapshot(devices)
-    try:
-        diag["sensors_required"] = sorted(graph.required([sensor]))
-    except MksError:
-        diag["sensors_required"] = [sensor]
     stream = snap.get(POINTS_SENSOR)
     timing["sensing"] = time.perf_counter() - t
     diag["points"] = len(stream.data)
