@@ -431,3 +431,39 @@ def test_v1_policy_plans_top_down_only() -> None:
         assert not policy.rotates
     finally:
         env.close()
+
+
+@pytest.mark.parametrize(("env_id", "n"), [("mks_sim/Grasp-v1", 5), ("mks_sim/Grasp-v2", 7)])
+def test_policy_waits_with_an_action_of_the_envs_length(env_id: str, n: int) -> None:
+    """No valid estimate yet: the policy holds still, hand open, in the env's action shape."""
+    from mks_sim.envs.scripted import ScriptedGraspPolicy
+
+    env = _make(env_id, object="cube")
+    try:
+        obs, _ = env.reset(seed=0)
+        obs["pose_valid"] = np.zeros(1, np.int8)
+        action = ScriptedGraspPolicy(env.unwrapped)(obs)
+        assert action.shape == env.action_space.shape == (n,)
+        assert action[-1] == -1.0 and not action[:-1].any()
+        env.step(action)
+    finally:
+        env.close()
+
+
+def test_clearance_is_the_lowest_point_every_step() -> None:
+    """The env recomputes the object's lowest point only when the body moved: on every
+    step the reported clearance equals a fresh computation (simulator ground truth)."""
+    from mks_sim.sim import names
+    from mks_sim.tasks.evaluate import lowest_point_z
+
+    env = _make("mks_sim/Grasp-v2", object="part")
+    try:
+        env.reset(seed=0)
+        u = env.unwrapped
+        rng = np.random.default_rng(0)
+        for _ in range(25):
+            *_, info = env.step(rng.uniform(-1, 1, 7).astype(np.float32))
+            fresh = lowest_point_z(u.world.model, u.world.data, "part") - names.TABLE_TOP_Z
+            assert info["clearance_m"] == fresh
+    finally:
+        env.close()

@@ -145,6 +145,12 @@ class ScriptedGraspPolicy:
                                   max_tilted=MAX_TILTED if self.rotates else 0)  # fmt: skip
         return cands[0].plan(self.task.action) if cands else None
 
+    def _wait(self) -> np.ndarray:
+        """Stay put with the hand open (no estimate or no grasp yet); v2's action is longer."""
+        action = np.zeros(7 if self.rotates else 5, np.float32)
+        action[-1] = -1.0
+        return action
+
     def _preshape_grip(self, obs: dict[str, Any], q: float) -> float:
         """Grip holding the fingers at angle ``q`` (rad): v1 steers the finger velocity there
         (a step is 0.1 s at up to 5 rad/s, so ``grip = dq / 0.5`` would close the gap in
@@ -157,10 +163,10 @@ class ScriptedGraspPolicy:
     def __call__(self, obs: dict[str, Any]) -> np.ndarray:
         if self.plan is None:
             if not obs["pose_valid"][0]:
-                return np.array([0, 0, 0, 0, -1], np.float32)
+                return self._wait()
             self.plan = self._plan(obs, np.asarray(obs["pose_estimate"], dtype=float))
             if self.plan is None:  # no grasp fits the estimate: wait for the next one
-                return np.array([0, 0, 0, 0, -1], np.float32)
+                return self._wait()
         plan = self.plan
         pinch = np.asarray(obs["pinch_pos"], dtype=float)
         grasp = np.asarray(plan.grasp_point_world)
