@@ -249,22 +249,27 @@ def test_ball_statistics_and_signed_normals_match_brute_force() -> None:
     cloud = rng.normal(size=(600, 3)) * [0.03, 0.02, 0.004]  # a noisy slab: anisotropic balls
     cloud_n = np.tile([0.0, 0.0, 1.0], (600, 1)) + rng.normal(size=(600, 3)) * 0.1
     queries = np.vstack([cloud[:40], [[1.0, 1.0, 1.0]]])  # the last ball is empty
-    radius, k = 0.012, 20
-    c, ev, _, cnt, _ = _ball_stats(cloud, cKDTree(cloud), queries, radius, k)
-    normals = pca_normals_signed(cloud, cloud_n, queries, radius, k)
-    for q in range(len(queries)):
-        d = np.linalg.norm(cloud - queries[q], axis=1)
-        nb = np.argsort(d)[:k]
-        nb = nb[d[nb] <= radius]
-        assert cnt[q] == len(nb)
-        if len(nb) == 0:
-            continue
-        np.testing.assert_allclose(c[q], cloud[nb].mean(axis=0), atol=1e-15)
-        cov = np.cov(cloud[nb].T, bias=True)
-        np.testing.assert_allclose(ev[q], np.linalg.eigvalsh(cov), atol=1e-14)
-        want = np.linalg.eigh(cov)[1][:, 0]
-        want *= 1.0 if want @ cloud_n[nb].sum(axis=0) >= 0 else -1.0
-        np.testing.assert_allclose(normals[q], want, atol=1e-8)
+    radius = 0.012
+    # k = 20: some balls hold more (the k nearest are chosen); k = 600: every ball is whole
+    for k in (20, 600):
+        c, ev, _, cnt, _ = _ball_stats(cloud, cKDTree(cloud), queries, radius, k)
+        normals = pca_normals_signed(cloud, cloud_n, queries, radius, k)
+        capped = 0
+        for q in range(len(queries)):
+            d = np.linalg.norm(cloud - queries[q], axis=1)
+            nb = np.argsort(d)[:k]
+            nb = nb[d[nb] <= radius]
+            capped += (d <= radius).sum() > k
+            assert cnt[q] == len(nb)
+            if len(nb) == 0:
+                continue
+            np.testing.assert_allclose(c[q], cloud[nb].mean(axis=0), atol=1e-15)
+            cov = np.cov(cloud[nb].T, bias=True)
+            np.testing.assert_allclose(ev[q], np.linalg.eigvalsh(cov), atol=1e-14)
+            want = np.linalg.eigh(cov)[1][:, 0]
+            want *= 1.0 if want @ cloud_n[nb].sum(axis=0) >= 0 else -1.0
+            np.testing.assert_allclose(normals[q], want, atol=1e-8)
+        assert (capped > 0) == (k == 20)
 
 
 def test_verification_stops_early_only_on_a_clear_winner() -> None:

@@ -69,6 +69,18 @@ def _ball_neighbours(
 ) -> csr_matrix:
     """(Q, N) 0/1 sparse matrix: row q marks the (at most ``k`` nearest) cloud points within
     ``radius`` of query q."""
+    # Every pair within the radius by one dual-tree search (~3x faster than a k-nearest query
+    # of the same balls); only when some ball holds more than k points is the k-nearest
+    # query needed to choose among them.
+    pairs = cKDTree(queries).sparse_distance_matrix(tree, radius, output_type="ndarray")
+    if len(pairs) == 0 or np.bincount(pairs["i"], minlength=len(queries)).max() <= k:
+        # rows in query order, each nearest first as the k-nearest query gives them (the
+        # ball sums are then added in the same order, to the last bit)
+        order = np.argsort(pairs["i"] + pairs["v"] / (2.0 * radius))
+        indptr = np.zeros(len(queries) + 1, np.int64)
+        np.cumsum(np.bincount(pairs["i"], minlength=len(queries)), out=indptr[1:])
+        cols = pairs["j"][order]
+        return csr_matrix((np.ones(len(cols)), cols, indptr), shape=(len(queries), len(cloud)))
     d, j = tree.query(queries, k=min(k, len(cloud)), distance_upper_bound=radius)
     if d.ndim == 1:
         d, j = d[:, None], j[:, None]
