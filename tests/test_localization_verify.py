@@ -179,3 +179,17 @@ def test_rank_prefers_the_pose_that_leaves_no_object_part_unexplained() -> None:
     assert checks[0].unexplained > checks[1].unexplained
     order, good = rank(cands, checks)
     assert order[0] == 1 and good[0] is cands[1]
+
+
+def test_polyhedral_gate_rejects_a_pose_covering_part_of_an_object() -> None:
+    """The polyhedral pipeline's gate on the counts of tuning seed 1008 (stereo pair): the
+    cube pose around the tall box (1183 explained, 310 unexplained) is rejected, the true
+    pose (1167, 177) kept; a check already inconsistent stays so."""
+    from mks_sim.localization.pipeline import _whole
+    from mks_sim.localization.verify import Consistency
+
+    box = Consistency(1183, 3, 54, 0.0, True, 310)
+    true = Consistency(1167, 0, 4, 0.0, True, 177)
+    assert not _whole(box).ok and _whole(true).ok
+    assert _whole(true) == true
+    assert not _whole(Consistency(1167, 0, 400, 0.0, False, 0)).ok

@@ -83,6 +83,14 @@ VISIBLE_FRACTION = 0.2
 ICP_POINTS = 800
 #: Scene points of the coarse ICP stage (6 iterations from every pre-screened start).
 COARSE_POINTS = 300
+#: A polyhedral pose that leaves more off-table points in its bounding sphere unexplained
+#: than this fraction of the points it explains covers only part of an object (a cube pose
+#: around the lower part of a taller box): not accepted (not found rather than a wrong pose).
+#: Chosen on tuning seeds 1000-1049: true cube poses left at most 0.08 unexplained with all
+#: devices, 0.20 with the stereo pair (seed 1031: 205 / 1039; the sphere on the cube counts);
+#: the wrong box poses 0.24-0.28 (stereo pair, seeds 1005, 1008, 1026, 1040, 1046); the part
+#: about 0.02. A narrow margin: see docs/localization.md.
+MAX_UNEXPLAINED = 0.22
 
 
 @dataclass(frozen=True, eq=False)
@@ -930,7 +938,7 @@ def localize_polyhedral(
     top = _top(candidates, 5)
     candidates = [candidates[i] for i in top]
     checks = [
-        consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree)
+        _whole(consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree))
         for h in candidates
     ]
     order, good = rank(candidates, checks)
@@ -951,7 +959,7 @@ def localize_polyhedral(
         )
         t2 = time.perf_counter()
         checks2 = [
-            consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree)
+            _whole(consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree))
             for h in support
         ]
         candidates += support
@@ -970,7 +978,7 @@ def localize_polyhedral(
     polished = _refine_near([candidates[i] for i in order[:n_polish]], model, objects, d, rng)
     if polished:
         checks3 = [
-            consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree)
+            _whole(consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree))
             for h in polished
         ]
         candidates += polished
@@ -986,6 +994,14 @@ def localize_polyhedral(
             dist = cKDTree(detected).query(mv)[0]
             extra["feature_support"] = int((dist < 4 * d).sum())
     return good, extra
+
+
+def _whole(check: Consistency) -> Consistency:
+    """The check, inconsistent when the pose leaves more than :data:`MAX_UNEXPLAINED` of its
+    explained count unexplained nearby (it covers only part of an object)."""
+    if check.ok and check.unexplained > MAX_UNEXPLAINED * check.explained:
+        return replace(check, ok=False)
+    return check
 
 
 def _top(candidates: list[PoseHypothesis], n: int) -> list[int]:
