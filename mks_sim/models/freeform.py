@@ -703,15 +703,15 @@ class FreeformModel:
         # Verify each triangle's rotation on its normals: the rotated model normals must agree
         # with the scene normals at all three corners (sign-free when normals were estimated).
         # rotated model normals (T, 3 corners, 3), elementwise (batched einsum is slower)
-        rn = (self.model_normals[pair_m][tri][:, :, None, :] * rot[:, None, :, :]).sum(axis=3)
-        dots = (rn * kp_n[pair_s][tri]).sum(axis=2)
+        rn = _dot3(self.model_normals[pair_m][tri][:, :, None, :], rot[:, None, :, :])
+        dots = _dot3(rn, kp_n[pair_s][tri])
         if normals is None:
             dots = np.abs(dots)
         good = np.all(dots >= np.cos(np.radians(cfg.normal_tolerance_deg)), axis=1)
         tri, rot, trans = tri[good], rot[good], trans[good]
         if len(tri) == 0:
             return FreeformResult([], len(kp_idx), n_pair, 0, keypoints)
-        ref = (rot * self.reference_point).sum(axis=2) + trans  # (T, 3) votes for P0
+        ref = _dot3(rot, self.reference_point) + trans  # (T, 3) votes for P0
         hyps = self._peaks(ref, rot, trans, tri, kp_idx[pair_s], pair_m)
         return FreeformResult(hyps, len(kp_idx), n_pair, len(tri), keypoints)
 
