@@ -487,7 +487,7 @@ class EpisodeAssembly:
         self.controller = ctl
         self.home_pos = ctl.pinch_pos()
         self.home_yaw = ctl.pinch_yaw()
-        self.monitor = HoldMonitor(world, self.task.object, names.TABLE_TOP_Z)
+        self.monitor = HoldMonitor(world, self.task.object, world.scene.support_z)
 
     def close(self) -> None:
         """Release the devices the assembly built."""
@@ -622,11 +622,12 @@ class EpisodeAssembly:
     def plans(self, est: np.ndarray) -> list[GraspPlan]:
         """Executable grasps for the estimate ``est``, best first."""
         assert self.controller is not None
+        support_z = self.world.scene.support_z  # the scene's table (or tray) top
         obstacles = None
         if self.scene_points_fn is not None:
             obstacles = obstacle_points(self.scene_points_fn(), est,
-                                        object_radius_m(self.obj) + 0.012, names.TABLE_TOP_Z)  # fmt: skip
-        cands = synthesize_grasps(self.obj, est, table_z=names.TABLE_TOP_Z, obstacles=obstacles,
+                                        object_radius_m(self.obj) + 0.012, support_z)  # fmt: skip
+        cands = synthesize_grasps(self.obj, est, table_z=support_z, obstacles=obstacles,
                                   rng=self._rng, preferred_yaw=self.controller.pinch_yaw())  # fmt: skip
         self.recorder.log_grasps(cands)
         return [c.plan(self.task.action) for c in cands]
