@@ -248,3 +248,29 @@ def test_range_finder_and_wrist_camera_failed_fall_back_to_the_fixed_cameras() -
         robot.sense()
     assert set(robot.faults) == {"range_finder", "wrist_camera"}
     assert robot.sensed.provenance["Fused_Points"] == "Stereo_View" and robot.views == 1
+
+
+def test_nothing_found_with_points_left_above_the_table_takes_a_view() -> None:
+    # The scanner's view found no instance: an empty floor ends the clearing, but a part the
+    # localization missed (points standing above the table) asks for a wrist view.
+    from mks_sim.lowlevel.regions import Plane
+    from mks_sim.tasks.bin import LEFT_ABOVE_M, LEFT_POINTS, BinPicker
+
+    rng = np.random.default_rng(0)
+    floor = np.c_[rng.uniform(-0.1, 0.1, (3000, 2)), 0.75 + rng.normal(0, 0.0005, 3000)]
+    g = np.arange(20) * 0.0025
+    x, y = np.meshgrid(g, g)
+    part = np.c_[x.ravel(), y.ravel(), np.full(x.size, 0.75 + 0.02)]
+    table = Plane(np.array([0.0, 0.0, 1.0]), 0.75, 0.0005)
+
+    def why(points: np.ndarray) -> str:
+        sensed = SimpleNamespace(
+            instances=SimpleNamespace(instances=(), table=table), points=points
+        )
+        return BinPicker._needs_view(SimpleNamespace(sensed=sensed), scanned=True)  # type: ignore[arg-type]
+
+    assert why(floor) == ""
+    up = int(np.sum(np.r_[floor, part][:, 2] > 0.75 + LEFT_ABOVE_M))  # brute force
+    assert up >= LEFT_POINTS
+    assert why(np.r_[floor, part]) == f"nothing found, {up} points above the table"
+    assert why(np.r_[floor, part[: LEFT_POINTS - 1]]) == ""
