@@ -26,6 +26,7 @@ __all__ = [
     "random_rotation",
     "rigid_fit",
     "rotation_angle_deg",
+    "rotation_from_covariance",
     "to_row_convention",
 ]
 
@@ -112,6 +113,21 @@ def from_row_convention(M: ArrayLike) -> FloatArray:
     return _as_matrix(M, "from_row_convention: M").T.copy()
 
 
+def rotation_from_covariance(H: FloatArray) -> FloatArray:
+    """The proper rotation ``R`` (det +1) maximising ``trace(R H)`` for a cross-covariance
+    ``H = sum_i w_i src_i dst_i^T`` (so ``R src_i ~ dst_i``: the Kabsch step), batched over
+    any leading axes ((..., 3, 3) in, (..., 3, 3) out). The reflection guard flips the
+    smallest singular direction when the SVD would give det -1.
+    """
+    U, _, Vt = np.linalg.svd(H)
+    V = np.swapaxes(Vt, -1, -2).copy()
+    Ut = np.swapaxes(U, -1, -2)
+    d = np.sign(np.linalg.det(V @ Ut))
+    d = np.where(d == 0, 1.0, d)
+    V[..., :, 2] *= d[..., None]
+    return np.asarray(V @ Ut, dtype=np.float64)
+
+
 def rigid_fit(
     src: ArrayLike, dst: ArrayLike, weights: ArrayLike | None = None
 ) -> tuple[FloatArray, float]:
@@ -155,12 +171,7 @@ def rigid_fit(
     Pc = P - mu_p
     Qc = Q - mu_q
     H = (Pc * w[:, None]).T @ Qc  # (3, 3) weighted cross-covariance
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(Vt.T @ U.T))
-    if d == 0:
-        d = 1.0
-    D = np.diag([1.0, 1.0, d])
-    R = Vt.T @ D @ U.T
+    R = rotation_from_covariance(H)
     t = mu_q - R @ mu_p
     resid = Q - (P @ R.T + t)
     rmse = float(np.sqrt(w @ np.sum(resid**2, axis=1)))

@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError, MksError
 from mks_sim.geometry.points import fibonacci_sphere
-from mks_sim.geometry.transforms import make_transform
+from mks_sim.geometry.transforms import make_transform, rotation_from_covariance
 from mks_sim.lowlevel.grouping import Vertexes
 from mks_sim.lowlevel.regions import Plane
 from mks_sim.models.pose import PoseHypothesis
@@ -302,11 +302,7 @@ def vertex_hypotheses(
             continue
         M = c_normals[sel]  # (K', 3, 3) rows = model normals
         # Batched Kabsch: R m_i ~ n_i.
-        U, _, Vt = np.linalg.svd(np.einsum("kji,jl->kil", M, Nd))
-        V = np.transpose(Vt, (0, 2, 1))
-        d = np.sign(np.linalg.det(V @ np.transpose(U, (0, 2, 1))))
-        V[:, :, 2] *= d[:, None]
-        R = V @ np.transpose(U, (0, 2, 1))  # (K', 3, 3)
+        R = rotation_from_covariance(np.einsum("kji,jl->kil", M, Nd))  # (K', 3, 3)
         cos = np.einsum("kij,kmj,mi->km", R, M, Nd).min(axis=1)  # worst normal agreement
         good = cos >= cos_max
         R, kept = R[good], sel[good]
