@@ -55,10 +55,11 @@ def test_registered_both_ways(version: str, cls: type) -> None:
 
 
 @pytest.mark.slow
-def test_check_env_passes() -> None:
-    env = GraspEnvV1(object="cube", localize_fn=_truth_localize, render_mode="rgb_array",
-                   observe_image=True, observe_depth=True, observe_points=True, n_points=64,
-                   image_size=(32, 24), render_size=(64, 48))  # fmt: skip
+@pytest.mark.parametrize("cls", [GraspEnvV1, GraspEnvV2])
+def test_check_env_passes(cls: type) -> None:
+    env = cls(object="cube", localize_fn=_truth_localize, render_mode="rgb_array",
+              observe_image=True, observe_depth=True, observe_points=True, n_points=64,
+              image_size=(32, 24), render_size=(64, 48))  # fmt: skip
     try:
         with pytest.warns(UserWarning):  # infinite Box bounds of proprioception: intended
             check_env(env, skip_render_check=False)
