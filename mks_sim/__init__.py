@@ -1,7 +1,7 @@
 """mks_sim: the Multi-sensor Kernel System (Henderson & Wu) in a simulated robotics workstation.
 
 Importing the package sets ``MUJOCO_GL=egl`` for headless rendering unless the user chose a
-backend already, and registers the gymnasium environments (``mks_sim/Grasp-v0``, ``-v1``).
+backend already, and registers the gymnasium environments (``mks_sim/Grasp-v0``, ``-v1``, ``-v2``).
 """
 
 from __future__ import annotations
