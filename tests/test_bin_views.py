@@ -49,15 +49,21 @@ def test_two_views_of_one_surface_do_not_double_density() -> None:
     c = _plane(0.003, 0.0) + [0.2, 0.0, 0.0]
     fused2 = fuse_views({"range_finder": Views([[_scan(a)], [_scan(c)]])}, {"merge_m": 0.0025})
     assert len(fused2.data) == len(a) + len(c)
-    # ... and a close, dense view (1 mm) is thinned to about the first view's density: one
-    # point per 2.5 mm cube, every cube of the view kept (brute force over the cubes)
+    # ... and a close, dense view (1 mm) after a sparse first one (4 mm) is thinned to one
+    # point per merge_m cube, every cube of the view kept (brute force over the cubes)
+    a4 = _plane(0.004, 0.0)
     e = _plane(0.001, 0.0, n=100) + [0.2, 0.0, 0.0]
-    fused3 = fuse_views({"range_finder": Views([[_scan(a)], [_scan(e)]])}, {"merge_m": 0.0025})
+    fused3 = fuse_views({"range_finder": Views([[_scan(a4)], [_scan(e)]])}, {"merge_m": 0.0025})
     kept_e = fused3.data[fused3.source == "range_finder#1"]
     cubes = {tuple(v) for v in np.floor(kept_e / 0.0025).astype(int)}
     assert len(cubes) == len(kept_e)  # one point per cube
     assert cubes == {tuple(v) for v in np.floor(e / 0.0025).astype(int)}
     assert len(kept_e) < 0.25 * len(e)
+    # after a first view as dense as it (the wrist camera alone), a dense view is not thinned
+    # below the first view's density: most of its points stay
+    a1 = _plane(0.001, 0.0, n=100)
+    fused4 = fuse_views({"range_finder": Views([[_scan(a1)], [_scan(e)]])}, {"merge_m": 0.0025})
+    assert np.sum(fused4.source == "range_finder#1") > 0.5 * len(e)
 
 
 def test_depth_view_back_projects_through_the_pose() -> None:

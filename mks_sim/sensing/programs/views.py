@@ -10,8 +10,8 @@ fused set:
   together: the scanner's one look) or one depth ``CameraFrame``;
 - an input may hold several readings taken at different arm poses: :class:`Views` (a tuple
   of readings), served by a :class:`HeldViews` device that returns what was captured;
-- views are merged in order: each later view, thinned to one point per ``merge_m`` cube,
-  adds only its points farther than ``merge_m`` from every point kept before, so where two
+- views are merged in order: each later view, thinned to one point per cube of the first
+  view's spacing (at most ``merge_m``), adds only its points farther than ``merge_m`` from every point kept before, so where two
   views see the same surface the density does not double and a close view is no denser
   than the first, and one view alone passes through unchanged (``Fused_Points`` of
   the range finder alone equals ``Range_Points``);
@@ -129,20 +129,23 @@ def merge_views(clouds: Sequence[np.ndarray], merge_m: float) -> tuple[np.ndarra
     """Merge views in order: ((M, 3) points, (M,) index of the view of each point).
 
     A later view's point within ``merge_m`` of a point kept from an earlier view is dropped,
-    and a later view is first thinned to one point per ``merge_m`` cube (the first occurring):
-    the wrist camera's close views are ~2-3x denser than the range finder's scan, and the
-    instance score counts explained points at the first view's spacing, so unthinned they
-    lifted every instance they saw to 1 (issue 13; tuning seed 4000: all six scored 1.0).
-    The first view passes unchanged.
+    and a later view is first thinned to one point per cube of the first view's spacing
+    (median nearest-neighbour distance), at most ``merge_m``: the wrist camera's close views
+    are ~2-3x denser than the range finder's scan, and the instance score counts explained
+    points at the first view's spacing, so unthinned they lifted every instance they saw to
+    1 (issue 13; tuning seed 4000: all six scored 1.0). The first view passes unchanged.
     """
     kept: list[np.ndarray] = []
     which: list[np.ndarray] = []
+    cube = merge_m
     for k, pts in enumerate(clouds):
         pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
+        if not kept and len(pts) >= 2:
+            sample = pts[:: max(1, len(pts) // 2000)]
+            spacing = float(np.median(cKDTree(pts).query(sample, k=2)[0][:, 1]))
+            cube = min(merge_m, spacing) if spacing > 0 else merge_m
         if kept and merge_m > 0 and len(pts):
-            _, first = np.unique(
-                np.floor(pts / merge_m).astype(np.int64), axis=0, return_index=True
-            )
+            _, first = np.unique(np.floor(pts / cube).astype(np.int64), axis=0, return_index=True)
             pts = pts[np.sort(first)]
             d = cKDTree(np.concatenate(kept)).query(pts, distance_upper_bound=merge_m)[0]
             pts = pts[~np.isfinite(d)]
