@@ -81,6 +81,8 @@ log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 POINTS_SENSOR = "Range_Points"
+#: Fewer points off the table than this: nothing to localize (the polyhedral path's floor).
+_MIN_OBJECT_POINTS = 30
 
 #: The description sensor whose ``params`` (``sensors/points.toml``: nominal table height and
 #: margin, SPG gap and neighbours) the flow's representation of ``Range_Points`` shares.
@@ -377,14 +379,22 @@ def localize_object(
     # 3. the snapshot's one low-level representation (shared with the description sensors)
     t = time.perf_counter()
     rep = snap.representation(POINTS_SENSOR, workstation_representation(graph))
-    rep.segmentation  # noqa: B018 - normals, curvature and regions, once
+    # nothing on the table (an episode's check after the object was lifted out of view):
+    # not found, rather than a segmentation of no points
+    empty = len(rep.objects) < _MIN_OBJECT_POINTS
+    if not empty:
+        rep.segmentation  # noqa: B018 - normals, curvature and regions, once
     timing["representation"] = time.perf_counter() - t
     points = rep.points
     diag["representation_points"] = len(points)
 
     kind = model_kind(model)
     diag["kind"] = kind
-    if kind == "sphere":
+    hyps: list[PoseHypothesis]
+    extra: dict[str, Any]
+    if empty:
+        hyps, extra = [], {"object_points": len(rep.objects)}
+    elif kind == "sphere":
         hyps, extra = localize_sphere(model, snap, sensor, rep, rng, timing)
     elif kind == "freeform":
         hyps, extra = localize_freeform(model, rep, rng, timing)
