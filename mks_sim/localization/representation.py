@@ -448,8 +448,10 @@ def representation_of(
         return hit[1]
     rep = Representation(arr, cfg)
 
-    def _forget(_ref: Any, k: tuple[int, RepresentationConfig] = key) -> None:
-        _REGISTRY.pop(k, None)
+    def _forget(
+        _ref: Any, k: tuple[int, RepresentationConfig] = key, reg: dict = _REGISTRY
+    ) -> None:
+        reg.pop(k, None)  # the registry bound at definition: None at interpreter exit
 
     try:
         ref = weakref.ref(arr, _forget)

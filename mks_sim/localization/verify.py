@@ -194,8 +194,12 @@ def _model_tree(surface_pts: FloatArray) -> cKDTree:
         return hit[1]
     tree = cKDTree(surface_pts)
 
-    def _drop(_ref: Any) -> None:
-        _MODEL_TREES.pop(key, None)
+    trees = _MODEL_TREES  # bound here: at interpreter exit the module global may be None
+
+    def _drop(ref: Any) -> None:
+        hit = trees.get(key)
+        if hit is not None and hit[0] is ref:  # not a newer array that reused the id
+            del trees[key]
 
     try:
         ref = weakref.ref(surface_pts, _drop)
@@ -215,7 +219,8 @@ def _model_spacing(surface_pts: FloatArray) -> float:
     sub = surface_pts[:: max(1, len(surface_pts) // 500)]
     spacing = float(np.median(tree.query(sub, k=2)[0][:, 1])) if len(surface_pts) > 1 else 0.0
     try:
-        _SPACINGS[key] = (weakref.ref(surface_pts, lambda _r: _SPACINGS.pop(key, None)), spacing)
+        spacings = _SPACINGS  # bound here: at interpreter exit the module global may be None
+        _SPACINGS[key] = (weakref.ref(surface_pts, lambda _r: spacings.pop(key, None)), spacing)
     except TypeError:
         pass
     return spacing
