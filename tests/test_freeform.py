@@ -361,3 +361,31 @@ def test_scene_keypoints_equal_signatures_and_normals_computed_everywhere(
     np.testing.assert_array_equal(idx, sub[kp])
     np.testing.assert_allclose(got_sig, sig[kp], rtol=0, atol=1e-12)
     np.testing.assert_allclose(got_n, n[kp], rtol=0, atol=1e-12)
+
+
+def test_pairings_are_capped_to_the_most_salient_keypoints(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The (pairings x pairings) consistency matrix is bounded: with a cap below what the
+    scene's keypoints need, detection equals detection on the most salient keypoints alone
+    (chosen here by sorting their variation at both scales), and the pose is still found."""
+    import mks_sim.models.freeform as ff
+
+    model = _model("torus")
+    pts, nrm, T = _scene(torus_mesh(), 7, occlude=False)
+    kp = model.scene_keypoints(pts, nrm)
+    n_match = model.config.matches_per_keypoint
+    cap = 3 * len(kp[0]) // 4
+    assert model.detect(pts, nrm, keypoints=kp).n_pairings > cap * n_match  # the cap bites
+    sal = kp[1][:, 0] + kp[1][:, 3]
+    top = np.sort(np.argsort(-sal, kind="stable")[:cap])
+    ref = model.detect(pts, nrm, keypoints=(kp[0][top], kp[1][top], kp[2][top]))
+    monkeypatch.setattr(ff, "MAX_PAIRINGS", cap * n_match)
+    capped = model.detect(pts, nrm, keypoints=kp)
+    assert capped.n_pairings == ref.n_pairings <= cap * n_match
+    assert len(capped.hypotheses) == len(ref.hypotheses) > 0
+    for a, b in zip(capped.hypotheses, ref.hypotheses, strict=True):
+        np.testing.assert_array_equal(a.matrix, b.matrix)
+    ver = model.localize(pts, nrm)
+    pos, rot = pose_error(ver[0].hypothesis.matrix, T, model.symmetries())
+    assert pos < 0.004 and rot < 4.0

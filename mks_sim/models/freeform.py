@@ -77,6 +77,12 @@ log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 
+#: At most this many (keypoint, model point) pairings per detection: their pairwise rigid
+#: consistency is a dense (C, C) float32 matrix (8000: 256 MB, a few temporaries of it), so
+#: beyond it only the most salient keypoints are paired (``matches`` per keypoint).
+MAX_PAIRINGS = 8000
+
+
 @dataclass(frozen=True)
 class FreeformConfig:
     """Parameters of the free-form model; ``None`` means "derived from the model size".
@@ -675,6 +681,13 @@ class FreeformModel:
             return FreeformResult([], len(kp_idx), 0, 0, keypoints)
         # Pairing: each keypoint with the model points of nearest signature (any view).
         n_match = matches or cfg.matches_per_keypoint
+        cap = max(3, MAX_PAIRINGS // n_match)
+        if len(kp_idx) > cap:
+            # the consistency matrix is (pairings x pairings): a noisy or wide scene with
+            # thousands of keypoints took 13 GB (stereo points of a cylinder, paired 24 per
+            # keypoint); keep the most salient keypoints (saliency: variation at both scales)
+            keep = np.sort(np.argsort(-_saliency(kp_sig), kind="stable")[:cap])
+            kp_idx, kp_sig, kp_n = kp_idx[keep], kp_sig[keep], kp_n[keep]
         k = min(len(self._sig_flat), n_match * 4)
         _, j = self._sig_tree.query(kp_sig / self._sig_scale, k=k)
         j = j.reshape(len(kp_idx), -1)
