@@ -131,6 +131,10 @@ def boresight_quat(eye: np.ndarray, target: np.ndarray) -> list[float]:
     return [q[3], q[0], q[1], q[2]]
 
 
+#: MuJoCo arena per world (``<size memory>``): room for the contacts of a full bin.
+ARENA = "64M"
+
+
 def _workstation(
     model_name: str,
     table_rgb: tuple[float, float, float] = (0.62, 0.55, 0.45),
@@ -138,6 +142,10 @@ def _workstation(
 ) -> tuple[mjcf.RootElement, Robot]:
     root = mjcf.RootElement(model=model_name)
     root.option.timestep = TIMESTEP
+    # MuJoCo's arena (contacts, constraint solver): the size it derives from the model ran out
+    # in a bin of six parts piled against the walls ("mj_stackAlloc: out of memory", bin
+    # benchmark seed 3000-3003 at bafc4a2)
+    root.size.memory = ARENA
     for key, value in CONTACT_OPTIONS.items():
         setattr(root.option, key, value)
     vis_global = getattr(root.visual, "global")
