@@ -79,6 +79,7 @@ def _clear(job: Job) -> dict[str, Any]:
     except Exception as exc:  # noqa: BLE001
         return {
             "seed": seed,
+            "present": count,  # a bin that raised counts its parts as not picked
             "error": f"{type(exc).__name__}: {exc}",
             "trace": traceback.format_exc(),
         }
@@ -147,6 +148,7 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
     for r in recs:
         if "error" in r:
             reasons[f"raised: {r['error'][:60]}"] += 1
+            present += r.get("present", 0)
             continue
         picked += r["picked"]
         present += r["present"]

@@ -36,3 +36,18 @@ def test_check_reports_a_stale_page_and_a_section_without_provenance() -> None:
     parts = {"x": "# x\n\n| a | b |"}
     found = cr.problems(parts, cr.assemble(parts))
     assert any("commit" in f for f in found) and any("load average" in f for f in found)
+
+
+def test_bin_clearing_counts_a_bin_that_raised_as_nothing_picked() -> None:
+    """A bin whose clear_bin run raised keeps its parts in the denominator (it was dropped,
+    which lifted 11 picked of 24 present to '11 / 18')."""
+    sys.path.insert(0, str(BENCH))
+    spec = importlib.util.spec_from_file_location("bench_bin", BENCH / "bin.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    ok = {"seed": 1, "picked": 3, "present": 6, "stopped": "empty", "picks": []}
+    raised = {"seed": 2, "present": 6, "error": "FatalError: out of memory", "trace": ""}
+    rows = "\n".join(mod.clearing_rows([ok, raised]))
+    assert "| **parts picked** | 3 / 12 | 25.0 % |" in rows
+    assert "raised: FatalError: out of memory" in rows
