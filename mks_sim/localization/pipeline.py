@@ -237,7 +237,7 @@ def polyhedral_candidates(
             model, seg.vertexes, seg_pts, vote_distance=4 * spacing, rotinv=rotinv
         )
         t_hyp += time.perf_counter() - t
-        pairs_of = functools.partial(_table_plane_pairs, seg, rep.objects, rep.table)
+        pairs_of = functools.partial(_plane_pairs, seg, rep.objects, rep.table)
         scored, dt_h, dt_v = _segment_verified(
             model,
             hyps,
@@ -267,32 +267,19 @@ def polyhedral_candidates(
     return [r[0] for r in results], [r[1] for r in results]
 
 
-def _table_plane_pairs(
-    seg: Segment, objects: FloatArray, table: Plane | None
+def _plane_pairs(
+    seg: Segment | SegmentReport, points: FloatArray, table: Plane | None
 ) -> list[tuple[Plane, FloatArray | None]]:
-    """Plane pairs of a representation segment (its diverse planes, the table flipped when
-    it rests on it; none when it has no planes); the planes' indices are into ``objects``."""
+    """Plane pairs of a segment (a representation's :class:`Segment`, plane indices into the
+    representation's object points, or a :func:`localize_cloud` :class:`SegmentReport`,
+    indices into the segment's points): its diverse planes, the table flipped when it rests
+    on it; none when it has no planes."""
     if not seg.planes:
         return []
     pairs: list[tuple[Plane, FloatArray | None]] = [
-        (r.plane, objects[r.indices]) for r in _diverse_planes(list(seg.planes))
+        (r.plane, points[r.indices]) for r in _diverse_planes(list(seg.planes))
     ]
     if seg.on_table and table is not None:
-        pairs.append((table.flipped(), None))
-    return pairs
-
-
-def _segment_plane_pairs(
-    rep: SegmentReport, seg_pts: FloatArray, table: Plane | None
-) -> list[tuple[Plane, FloatArray | None]]:
-    """Plane pairs of a :func:`localize_cloud` segment (plane indices into ``seg_pts``; none
-    when it has no planes)."""
-    if not rep.planes:
-        return []
-    pairs: list[tuple[Plane, FloatArray | None]] = [
-        (r.plane, seg_pts[r.indices]) for r in _diverse_planes(list(rep.planes))
-    ]
-    if rep.on_table and table is not None:
         pairs.append((table.flipped(), None))
     return pairs
 
@@ -644,7 +631,7 @@ def localize_cloud(
             hyps = loc_model.hypotheses(seg_pts, None if seg is None else seg.normals)
         t_match += time.perf_counter() - t
         polyhedral = isinstance(loc_model, PolyhedralModel)
-        pairs_of = functools.partial(_segment_plane_pairs, rep, seg_pts, table_plane)
+        pairs_of = functools.partial(_plane_pairs, rep, seg_pts, table_plane)
         scored, dt_h, dt_v = _segment_verified(
             loc_model if polyhedral else None,
             hyps,
