@@ -11,10 +11,10 @@ fused set:
 - an input may hold several readings taken at different arm poses: :class:`Views` (a tuple
   of readings), served by a :class:`HeldViews` device that returns what was captured;
 - views are merged in order: each later view, thinned to one point per cube of the first
-  view's spacing (at most ``merge_m``), adds only its points farther than ``merge_m`` from every point kept before, so where two
-  views see the same surface the density does not double and a close view is no denser
-  than the first, and one view alone passes through unchanged (``Fused_Points`` of
-  the range finder alone equals ``Range_Points``);
+  view's spacing (at most ``merge_m``), adds only its points farther than ``merge_m`` from
+  every point kept before, so where two views see the same surface the density does not
+  double and a close view is no denser than the first, and one view alone passes through
+  unchanged (``Fused_Points`` of the range finder alone equals ``Range_Points``);
 - the stream's ``source`` names each row's view (``range_finder#0``, ``wrist_camera#1``), so
   the provenance of every point is kept.
 
