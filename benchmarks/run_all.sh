@@ -24,12 +24,13 @@ if [ "${BENCH_FORCE:-0}" != 1 ] && awk "BEGIN{exit !($load >= 1.0)}"; then
 fi
 
 if [ "$PROFILE" = short ]; then
-  SIM_N=50; FF_TRIALS=4; GRASP_EP=15; OBJ_N=4; BIN_N=4; BACK_EP=12
+  SIM_N=50; FF_TRIALS=4; GRASP_EP=15; ENV_EP=20; OBJ_N=4; BIN_N=4; BACK_EP=12
 else
-  SIM_N=100; FF_TRIALS=4; GRASP_EP=100; OBJ_N=50; BIN_N=20; BACK_EP=24
+  SIM_N=100; FF_TRIALS=4; GRASP_EP=100; ENV_EP=100; OBJ_N=50; BIN_N=20; BACK_EP=24
 fi
 # any size can be set alone, e.g. BENCH_OBJ_N=20 BENCH_PROFILE=short benchmarks/run_all.sh
 SIM_N=${BENCH_SIM_N:-$SIM_N}; GRASP_EP=${BENCH_GRASP_EP:-$GRASP_EP}; OBJ_N=${BENCH_OBJ_N:-$OBJ_N}
+ENV_EP=${BENCH_ENV_EP:-$ENV_EP}
 BIN_N=${BENCH_BIN_N:-$BIN_N}; BACK_EP=${BENCH_BACK_EP:-$BACK_EP}
 
 settle() {  # wait (up to 5 min) for the previous script's load to decay below 1
@@ -56,7 +57,7 @@ run localize $PY benchmarks/localize.py --trials 4
 run localize_sim $PY benchmarks/localize_sim.py --n $SIM_N --no-progress --out $R/localize_sim.md
 run freeform $PY benchmarks/freeform.py --trials $FF_TRIALS --cv-contrib venv  # the bench extra's cv2 is the contrib build
 run env $PY benchmarks/env.py
-run grasp $PY benchmarks/grasp.py --episodes $GRASP_EP --workers 2
+run grasp $PY benchmarks/grasp.py --episodes $GRASP_EP --env-episodes $ENV_EP --workers 2
 run objects $PY benchmarks/objects.py --n $OBJ_N --workers 2 --out $R/objects.md
 run bin $PY benchmarks/bin.py --n $BIN_N --workers 2 --out $R/bin.md
 run backends $PY benchmarks/backends.py --episodes $BACK_EP --out $R/backends.md
