@@ -23,6 +23,12 @@ if [ "${BENCH_FORCE:-0}" != 1 ] && awk "BEGIN{exit !($load >= 1.0)}"; then
   exit 2
 fi
 
+# the peers come from the bench extra; a missing one turns its rows into "unavailable"
+if ! $PY -c "import sklearn, open3d, cv2, gymnasium_robotics" 2>/dev/null && [ "${BENCH_FORCE:-0}" != 1 ]; then
+  echo "run_all: a peer library is missing: install the bench extra (make bench, or $PY -m pip install -e '.[bench]')" >&2
+  exit 2
+fi
+
 if [ "$PROFILE" = short ]; then
   SIM_N=50; FF_TRIALS=4; GRASP_EP=15; ENV_EP=20; OBJ_N=4; BIN_N=4; BACK_EP=12
 else
