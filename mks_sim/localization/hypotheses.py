@@ -42,6 +42,7 @@ __all__ = [
     "rotation_between",
     "score_spheres",
     "sphere_centre_hough",
+    "stable_hull_normals",
     "support_face_hypotheses",
     "vertex_hypotheses",
 ]
@@ -76,6 +77,9 @@ def support_face_hypotheses(
     surface = model.surface
     pts = np.asarray(surface.points, dtype=np.float64)
     up = table.normal / np.linalg.norm(table.normal)
+    # the model's exact corners make the hull's planes exact (samples miss edges)
+    corners = np.asarray(getattr(model, "vertexes", np.empty((0, 3))), dtype=np.float64)
+    rests = stable_hull_normals(np.vstack([corners.reshape(-1, 3), pts]), centre=pts.mean(axis=0))
     out: list[PoseHypothesis] = []
     for seg in segments:
         # off the table's noise band (stereo noise near the table joins the segment)
@@ -87,10 +91,13 @@ def support_face_hypotheses(
             continue  # larger than the model: not one object of it
         starts: list[PoseHypothesis] = []
         seg_angle = principal_angle(seg_pts[:, :2])
-        for face in faces:
-            n = np.asarray(face.normal, dtype=np.float64)
-            if np.max(pts @ n) > face.offset + 0.02 * surface.size:
-                continue  # not a support face (model points beyond it)
+        normals = [
+            np.asarray(face.normal, dtype=np.float64)
+            for face in faces
+            if np.max(pts @ face.normal) <= face.offset + 0.02 * surface.size
+        ]  # support faces: no model points beyond them
+        normals += [n for n in rests if all(n @ m < 0.999 for m in normals)]
+        for n in normals:
             R0 = rotation_between(n, -up)
             rotated = pts @ R0.T
             model_angle = principal_angle(rotated[:, :2])
@@ -126,6 +133,49 @@ def support_face_hypotheses(
         timing["verification"] = timing.get("verification", 0.0) + (t - t_hyp)
         out.extend(v.hypothesis for v in verified)
     out.sort(key=lambda h: -h.score)
+    return out
+
+
+def stable_hull_normals(
+    points: FloatArray,
+    centre: FloatArray | None = None,
+    min_area: float = 0.02,
+    tol: float = 1e-3,
+) -> list[FloatArray]:
+    """Outward normals of the convex hull's planes of ``points`` (a model's corners and
+    surface samples) that the object can rest on: planes of at least ``min_area`` of the
+    hull's area onto whose polygon ``centre`` (default the points' mean) projects. Rests
+    that are no face of the model (an L-bracket on its two leg ends) come from these."""
+    from scipy.spatial import ConvexHull, Delaunay, QhullError
+
+    pts = np.asarray(points, dtype=np.float64)
+    try:
+        hull = ConvexHull(pts)
+    except (QhullError, ValueError):
+        return []
+    tri = pts[hull.simplices]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    keys = np.round(hull.equations[:, :3] / tol).astype(np.int64)
+    _, group = np.unique(keys, axis=0, return_inverse=True)
+    group = group.ravel()
+    group_area = np.bincount(group, weights=area)
+    centre = pts.mean(axis=0) if centre is None else np.asarray(centre, dtype=np.float64)
+    out: list[FloatArray] = []
+    for g in np.flatnonzero(group_area >= min_area * area.sum()):
+        rows = np.flatnonzero(group == g)
+        n = hull.equations[rows[0], :3] / np.linalg.norm(hull.equations[rows[0], :3])
+        corners = pts[np.unique(hull.simplices[rows])]
+        # the plane's polygon and the projected centre in 2-D plane coordinates
+        u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        v = np.cross(n, u)
+        flat = np.stack([corners @ u, corners @ v], axis=1)
+        try:
+            inside = Delaunay(flat).find_simplex(np.array([centre @ u, centre @ v])) >= 0
+        except QhullError:  # a sliver of a plane: no rest
+            continue
+        if inside:
+            out.append(n)
     return out
 
 

@@ -33,6 +33,7 @@ from mks_sim.errors import DataError, MksError
 from mks_sim.io.units import check_scale
 from mks_sim.localization.hypotheses import (
     plane_pair_hypotheses,
+    rotation_about,
     score_spheres,
     sphere_centre_hough,
     support_face_hypotheses,
@@ -813,6 +814,11 @@ def _group_segment(
 # An object segment whose points a consistent candidate explains at least this fraction of
 # needs no support-face hypotheses.
 SUPPORT_EXPLAINED_FRACTION = 0.8
+# The best pose leaving more object points near it unexplained than this fraction of those it
+# explains gets ICP restarts from copies of it shifted by these fractions of the model's
+# size and turned (:func:`_hop`).
+HOP_UNEXPLAINED = 0.05
+HOP_SHIFTS = (0.12, 0.25)
 SPHERE_SENSOR = "Sphere_Detector"
 # Spheres of this radius range found by Sphere_Detector are set aside before polyhedral
 # matching (the workstation's spheres are 3 cm; larger fits are curved-region artefacts).
@@ -938,8 +944,10 @@ def localize_polyhedral(
     unexplained: list[Any] = []
     if table is not None and _best_covers_little(candidates, checks, order, model, objects, d):
         # support segments as the sensors separate objects: SPG components over 12 mm edges
+        # (none that large: an object seen in pieces, e.g. an L-bracket standing on its leg
+        # ends, keeps the merged segments)
         wide = object_segments(rep, surface.size, keep=keep, gap=rep.gap, merge=False)
-        unexplained = _unexplained_segments(wide, candidates, checks, model, d)
+        unexplained = _unexplained_segments(wide or segments, candidates, checks, model, d)
     if table is not None and unexplained:
         # The object rests on the table: hypotheses from every support face of the model put
         # on the sensed table plane (yaw from the footprint's principal axes and 8 fixed
@@ -982,6 +990,19 @@ def localize_polyhedral(
             candidates.append(h)
             checks.append(c)
     order, good = rank(candidates, checks)
+    best = checks[order[0]] if order else None
+    if best is not None and (not best.ok or best.unexplained > HOP_UNEXPLAINED * best.explained):
+        # A pose one wall off (a thin object slid along itself, or turned end for end) is
+        # consistent and ICP stays in its basin: when the best is not consistent or leaves
+        # object points near it unexplained, ICP restarts from shifted and turned copies of
+        # it, which compete.
+        hops = _hop(candidates[order[0]], model, objects, d, rng)
+        for h in hops:
+            c = _whole(consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree))
+            candidates.append(h)
+            checks.append(c)
+        extra["hops"] = len(hops)
+        order, good = rank(candidates, checks)
     timing["verification"] += time.perf_counter() - t
     extra["checks"] = [checks[i].as_dict() for i in order[:5]]
     if good and detected is not None and len(detected):
@@ -1088,6 +1109,63 @@ def _unexplained_segments(
         if covered.mean() < SUPPORT_EXPLAINED_FRACTION:
             out.append(seg)
     return out
+
+
+def _hop(
+    best: PoseHypothesis, model: Any, objects: FloatArray, d: float, rng: np.random.Generator
+) -> list[PoseHypothesis]:
+    """ICP from copies of ``best`` shifted along its horizontal axes (by :data:`HOP_SHIFTS`
+    of the model's size), turned about the vertical by quarter turns and half round about
+    its own axes: the three that explain the most of the object points near it after ICP
+    (coarse ICP from every start, full ICP of the three best)."""
+    pts = np.asarray(model.surface_points(), dtype=np.float64)
+    T0 = np.asarray(best.matrix, dtype=np.float64)
+    size = float(model.surface.size)
+    centre = T0[:3, :3] @ pts.mean(axis=0) + T0[:3, 3]
+    starts = []
+    for axis in T0[:3, :3].T:
+        horizontal = np.array([axis[0], axis[1], 0.0])
+        norm = float(np.linalg.norm(horizontal))
+        if norm < 0.5:
+            continue  # a near-vertical axis: shifts along it leave the table
+        for step in HOP_SHIFTS:
+            for sign in (-1.0, 1.0):
+                T = T0.copy()
+                T[:3, 3] += sign * step * size * horizontal / norm
+                starts.append(T)
+    turns = [rotation_about(np.array([0.0, 0.0, 1.0]), a * np.pi) for a in (0.5, 1.0, 1.5)]
+    turns += [rotation_about(axis, np.pi) for axis in T0[:3, :3].T]
+    radius = float(np.max(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
+    near = objects[np.linalg.norm(objects - centre, axis=1) <= radius * (1 + max(HOP_SHIFTS))]
+    # Turned about the model's centre and about the centre of the points seen near it (a
+    # part seen from one side turns about what is seen), then set back down to the best's
+    # lowest point (it rests where it did).
+    pivots = [centre] if len(near) == 0 else [centre, near.mean(axis=0)]
+    low = float(np.min(pts @ T0[2, :3] + T0[2, 3]))
+    for R in turns:
+        for pivot in pivots:
+            T = T0.copy()
+            T[:3, :3] = R @ T0[:3, :3]
+            T[:3, 3] = R @ (T0[:3, 3] - pivot) + pivot
+            T[2, 3] += low - float(np.min(pts @ T[2, :3] + T[2, 3]))
+            starts.append(T)
+    surface = getattr(model, "surface", None)
+    if not isinstance(surface, ModelSurface) or surface.points is not pts:
+        surface = ModelSurface.from_arrays(pts, model.surface_normals())
+    verified = verify_hypotheses(
+        [PoseHypothesis(T, T[:3, 3].copy()) for T in starts],
+        surface,
+        near,
+        inlier_distance=d,
+        icp_distance=max(4 * d, 0.1 * surface.size),
+        symmetries=model.symmetries(),
+        max_icp=len(starts),
+        full_refine=3,
+        max_scene_points=1000,
+        coarse_points=300,
+        rng=rng,
+    )
+    return [v.hypothesis for v in verified[:3]]
 
 
 def _refine_near(
