@@ -304,27 +304,64 @@ def test_tilted_fingers_and_palm_keep_clear_of_sensed_points() -> None:
     assert all(sweep_distance(c) >= grasp.FINGER_CLEARANCE_M - 1e-3 for c in walled)
 
 
-def test_the_l_bracket_standing_on_its_short_leg_gets_tilted_grasps_too() -> None:
-    """Issue 10's thin shape (tests/_gen_meshes.py): standing on its 40 mm leg's end, the
-    bracket gets tilted candidates besides the top-down ones (antipodal by brute force).
-    Lying flat or on its long leg its faces are 10 mm across, narrower than the 13 mm pad,
-    and neither path finds a pair (docs/grasp.md, Limits)."""
+def _bracket() -> ObjectModel:
     import sys
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).parent))
     import _gen_meshes as gen
 
-    tm = gen.l_bracket()
-    obj = _object(Mesh(np.asarray(tm.vertices), np.asarray(tm.faces)))
+    tm = gen.l_bracket()  # legs 60 and 40 mm, walls 10 mm, 25 mm deep
+    return _object(Mesh(np.asarray(tm.vertices), np.asarray(tm.faces)))
+
+
+def test_the_l_bracket_standing_on_its_short_leg_gets_tilted_grasps_too() -> None:
+    """Issue 10's thin shape (tests/_gen_meshes.py): standing on its 40 mm leg's end, the
+    bracket gets tilted candidates besides the top-down ones (antipodal by brute force)."""
+    obj = _bracket()
     R = Rotation.from_euler("y", 90, degrees=True).as_matrix()  # the 40 mm leg down
     T = _resting(obj.mesh, R, (0.0, 0.1))
     cands = synthesize_grasps(obj, T, table_z=TABLE_Z)
     top = synthesize_grasps(obj, T, table_z=TABLE_Z, max_tilt_deg=0)
     assert top and len(cands) > len(top)
     _check(obj, T, cands)
-    flat = _resting(obj.mesh, np.eye(3), (0.0, 0.1))  # lying flat, 25 mm tall
-    assert synthesize_grasps(obj, flat, table_z=TABLE_Z) == []
+
+
+def test_the_l_bracket_lying_flat_is_pinched_across_a_wall() -> None:
+    """Lying flat (25 mm tall) every face a 13 mm pad fits on pairs with one 10 mm away, the
+    other side of a wall: the hand closes on 8 mm and up, so the candidates pinch a wall."""
+    obj = _bracket()
+    flat = _resting(obj.mesh, np.eye(3), (0.0, 0.1))
+    cands = synthesize_grasps(obj, flat, table_z=TABLE_Z, max_tilt_deg=0)
+    assert cands
+    _check(obj, flat, cands)
+    for c in cands:  # the contacts lie on a wall's two faces, 10 mm apart along their normal
+        a, b = np.asarray(c.contacts_world)
+        n = np.asarray(c.normals_world)[0]
+        assert abs((b - a) @ n) == pytest.approx(0.010, abs=1e-6)
+    # not at 20 mm, the former narrowest pinch
+    assert synthesize_grasps(obj, flat, table_z=TABLE_Z, max_tilt_deg=0, min_width_m=0.02) == []
+
+
+def test_faces_leaning_over_25_degrees_are_not_pinched_from_above() -> None:
+    """The bracket on its two leg ends (its hull's plane through both ends on the table):
+    its walls lean 31 degrees (atan(30/50), brute force from the profile), inside the 45
+    degree friction cone at mu = 1 but over MAX_FACE_LEAN_DEG: no top-down pinch on them;
+    with the lean allowed up to 45 degrees they come back."""
+    obj = _bracket()
+    n = np.array([30.0, 50.0, 0.0]) / np.hypot(30.0, 50.0)  # outward normal of that plane
+    R = Rotation.align_vectors([[0.0, 0.0, -1.0]], [n])[0].as_matrix()
+    T = _resting(obj.mesh, R, (0.0, 0.1))
+
+    def lean(c: grasp.GraspCandidate) -> float:
+        nz = max(abs(float(v[2])) for v in np.asarray(c.normals_world))
+        return math.degrees(math.asin(min(nz, 1.0)))
+
+    default = synthesize_grasps(obj, T, table_z=TABLE_Z, max_tilt_deg=0, max_candidates=200)
+    wide = synthesize_grasps(obj, T, table_z=TABLE_Z, max_tilt_deg=0, max_candidates=200,
+                             max_face_lean_deg=45.0)  # fmt: skip
+    assert all(lean(c) <= grasp.MAX_FACE_LEAN_DEG + 1e-6 for c in default)
+    assert any(lean(c) == pytest.approx(math.degrees(math.atan(30 / 50)), abs=0.5) for c in wide)
 
 
 def test_a_tighter_finger_clearance_admits_grasps_beside_a_wall() -> None:

@@ -53,8 +53,13 @@ def test_l_bracket_convex_decomposition(tmp_path: Path) -> None:
     src = _export_mm(gen.l_bracket(), tmp_path / "l.stl")
     rep = add_object(src, "bracket", tmp_path, units="mm")
     assert rep.kinds == ("polyhedral",) and rep.symmetry == "none"
-    # 10 mm walls, 13 mm pads: every pair the hand closes on (>= 20 mm) ends on a 10 mm face
-    assert any("walls thinner than the pads" in w for w in rep.warnings)
+    # 10 mm walls with 25 mm faces: the hand pinches across a wall (>= 8 mm)
+    assert not any("walls thinner than the pads" in w for w in rep.warnings)
+    # 6 mm walls: narrower than the hand closes on, and every wider pair ends on a 6 mm face
+    # that a 13 mm pad overhangs
+    thin_src = _export_mm(gen.l_bracket(0.006), tmp_path / "t.stl")
+    thin = add_object(thin_src, "thin", tmp_path, units="mm")
+    assert any("walls thinner than the pads" in w for w in thin.warnings)
     obj = load_object("bracket", models=[tmp_path])
     assert isinstance(obj.collision, tuple) and len(obj.collision) >= 2
     # every part is convex and the parts together cover the bracket (volume within 15 %)
@@ -119,12 +124,13 @@ def _mesh(tm: trimesh.Trimesh) -> Mesh:
 
 
 def test_pinch_sites_need_a_pad_on_both_faces() -> None:
-    """Geometry the hand's limits decide by hand: a 10 mm plate (pairs across it are too
-    narrow, pairs across 60 mm end on 10 mm edges) and the 10 mm bracket have no pinch site;
-    a 30 mm cube (6 faces, each pair 30 mm apart) has one almost everywhere, and so has the
-    bracket with 22 mm walls on its leg faces."""
-    assert pinch_fraction(_mesh(trimesh.creation.box((0.06, 0.06, 0.01)))) == 0.0
-    assert pinch_fraction(_mesh(gen.l_bracket())) == 0.0
+    """Geometry the hand's limits decide by hand: a 6 mm plate (pairs across it are narrower
+    than the 8 mm the hand closes on, pairs across 60 mm end on 6 mm edges) and the 6 mm
+    bracket have no pinch site; a 30 mm cube (6 faces, each pair 30 mm apart) has one almost
+    everywhere, and so have the brackets with 10 mm and 22 mm walls on their leg faces."""
+    assert pinch_fraction(_mesh(trimesh.creation.box((0.06, 0.06, 0.006)))) == 0.0
+    assert pinch_fraction(_mesh(gen.l_bracket(0.006))) == 0.0
+    assert pinch_fraction(_mesh(gen.l_bracket())) > 0.1
     # a 13 mm pad fits where the contact is 6.5 mm or more from every edge: (17/30)^2
     assert pinch_fraction(_mesh(trimesh.creation.box((0.03, 0.03, 0.03)))) == pytest.approx(
         (17 / 30) ** 2, abs=0.08

@@ -307,8 +307,16 @@ TIPS_BELOW_PINCH_M = 0.018
 #: A failed pick within this distance of an instance's estimate puts that instance last.
 FAILED_NEAR_M = 0.015
 #: Fingers closed beyond this (rad; 1.35 = fully closed) hold nothing: the narrowest grasp the
-#: synthesis makes (MIN_WIDTH_M = 2 cm) closes the pads at ~1.2 rad (grasp.PAD_APERTURE_M).
+#: bin asks of the synthesis (:data:`BIN_MIN_WIDTH_M`) closes the pads at ~1.2 rad
+#: (grasp.PAD_APERTURE_M).
 EMPTY_HAND_Q = 1.25
+#: The bin's narrowest pinch: narrower ones (the synthesis goes down to 8 mm for thin walls)
+#: close the fingers to where this test cannot tell a part from pads touching each other.
+BIN_MIN_WIDTH_M = 0.02
+#: Contact faces of a top-down pinch lean at most this far from the vertical in the bin: the
+#: friction cone's 45 deg, with which clear_bin was tuned and measured (the single-object
+#: synthesis default, 25 deg, was chosen on the thin bracket and not tried in bins).
+BIN_MAX_FACE_LEAN_DEG = 45.0
 CLEARANCE_ABOVE_M = 0.16  # travel height of the pinch point above the table between bin and box
 
 
@@ -688,6 +696,7 @@ class BinPicker:
         cands = synthesize_grasps(
             self.obj, T, table_z=self.table_z, obstacles=obs, rng=self.rng,
             preferred_yaw=self.ctl.pinch_yaw(), finger_clearance_m=clearance,
+            min_width_m=BIN_MIN_WIDTH_M, max_face_lean_deg=BIN_MAX_FACE_LEAN_DEG,
         )  # fmt: skip
         self._grasp_memo = (self.sensed, i, obstacles, cands)
         return cands

@@ -230,9 +230,17 @@ FINGERTIP_DROP_M = 0.015
 # The object's own surface closer than this to an open fingertip's axis blocks the descent
 # (the fingertip's half thickness plus a little).
 SELF_CLEARANCE_M = 0.008
-# Widths the pads close on: the part's 13 mm boss never gave contact on both pads in our
-# trials (docs/grasp.md); the widest is the open hand minus the pre-shape margin.
-MIN_WIDTH_M = 0.02
+# Widths the pads close on: the closed hand's pads are 4 mm apart, and a 10 mm wall with a
+# 25 mm face (the L-bracket's) is held (tuning seeds 1000-1011: 9/12 at 8 mm, 0/12 at the
+# former 20 mm, chosen when the part's 13 mm boss never gave contact on both pads, see
+# docs/grasp.md; its boss stays out on the pad check). The widest is the open hand minus
+# the pre-shape margin. The bin passes 20 mm (its empty-hand test reads the finger angle).
+MIN_WIDTH_M = 0.008
+# A contact face leaning more than this from the vertical is not pinched from the side (the
+# friction cone alone allows 45 deg at mu = 1): the horizontal squeeze pushes the part along
+# a leaning face, and the bracket on its leg ends (walls leaning 31 deg) slipped out of
+# every such pinch (tuning seeds 1006, 1008, 1010, 1011); 25 deg kept 3 of them.
+MAX_FACE_LEAN_DEG = 25.0
 MAX_WIDTH_M = float(PAD_APERTURE_M[0]) - PRESHAPE_MARGIN_M
 # Pinch point above the table (fingertips reach ~15 mm below it); a model's grasp hint
 # ``min_clearance_m`` overrides it.
@@ -367,6 +375,8 @@ def synthesize_grasps(
     max_tilt_deg: float = MAX_TILT_DEG,
     max_tilted: int = MAX_TILTED,
     finger_clearance_m: float = FINGER_CLEARANCE_M,
+    min_width_m: float = MIN_WIDTH_M,
+    max_face_lean_deg: float = MAX_FACE_LEAN_DEG,
 ) -> list[GraspCandidate]:
     """Antipodal grasps of ``obj`` at ``object_to_world``: top-down first, then tilted.
 
@@ -390,6 +400,9 @@ def synthesize_grasps(
         finger_clearance_m: obstacle points closer than this to an open fingertip's descent
             block it (default :data:`FINGER_CLEARANCE_M`; a rigid fixture such as a bin wall
             may be passed closer).
+        min_width_m: narrowest pinch (default :data:`MIN_WIDTH_M`).
+        max_face_lean_deg: a top-down pinch's contact faces lean at most this far from the
+            vertical (default :data:`MAX_FACE_LEAN_DEG`).
 
     Returns:
         Candidates: the top-down ones best first, then the tilted ones best first (a
@@ -413,7 +426,7 @@ def synthesize_grasps(
     # A contact's inward normal must fit in a cone around a horizontal closing axis, and
     # its height keep the pinch point above the table's clearance.
     keep = np.flatnonzero(
-        (np.abs(n_world[:, 2]) <= math.sin(math.atan(mu)))
+        (np.abs(n_world[:, 2]) <= math.sin(min(math.atan(mu), math.radians(max_face_lean_deg))))
         & (p_world[:, 2] + PAD_CENTRE_BELOW_M >= table_z + clearance)
     )
     keep = rng.choice(keep, size=min(n_samples, len(keep)), replace=False)
@@ -431,7 +444,7 @@ def synthesize_grasps(
     d = D / np.maximum(w, 1e-12)[:, None]  # horizontal unit
     a_i = -np.einsum("pk,pk->p", d, n_world[ii, :2])  # inward normal at i along +d
     a_j = np.einsum("pk,pk->p", d, n_world[jj, :2])  # inward normal at j along -d
-    ok = (w >= MIN_WIDTH_M) & (w <= MAX_WIDTH_M) & (a_i >= cos_cone) & (a_j >= cos_cone)
+    ok = (w >= min_width_m) & (w <= MAX_WIDTH_M) & (a_i >= cos_cone) & (a_j >= cos_cone)
     ii, jj, d, a_i, a_j, pair_width = ii[ok], jj[ok], d[ok], a_i[ok], a_j[ok], w[ok]
     obs = np.zeros((0, 3))
     if obstacles is not None and len(obstacles):
@@ -445,6 +458,7 @@ def synthesize_grasps(
             obj, R, t, table_z=table_z, own=own, obs=obs, cos_cone=cos_cone,
             max_tilt=math.radians(max_tilt_deg), n_samples=n_samples,
             preferred_yaw=preferred_yaw, limit=max_tilted, finger_clearance=finger_clearance_m,
+            min_width_m=min_width_m,
         )  # fmt: skip
     if len(ii) == 0:
         return tilted
@@ -508,6 +522,7 @@ def _tilted_grasps(
     preferred_yaw: float,
     limit: int,
     finger_clearance: float = FINGER_CLEARANCE_M,
+    min_width_m: float = MIN_WIDTH_M,
 ) -> list[GraspCandidate]:
     """Grasps whose approach leaves the vertical (at most ``max_tilt`` rad), best first.
 
@@ -539,7 +554,7 @@ def _tilted_grasps(
     d = D / np.maximum(w, 1e-12)[:, None]
     a_i = -np.einsum("pk,pk->p", d, n_w[ii])
     a_j = np.einsum("pk,pk->p", d, n_w[jj])
-    ok = (w >= MIN_WIDTH_M) & (w <= MAX_WIDTH_M) & (a_i >= cos_cone) & (a_j >= cos_cone)
+    ok = (w >= min_width_m) & (w <= MAX_WIDTH_M) & (a_i >= cos_cone) & (a_j >= cos_cone)
     ok &= np.abs(d[:, 2]) <= math.sin(max_tilt)
     ok = np.flatnonzero(ok)
     if len(ok) == 0:
