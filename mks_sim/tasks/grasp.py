@@ -239,7 +239,7 @@ MIN_WIDTH_M = 0.008
 # A contact face leaning more than this from the vertical is not pinched from the side (the
 # friction cone alone allows 45 deg at mu = 1): the horizontal squeeze pushes the part along
 # a leaning face, and the bracket on its leg ends (walls leaning 31 deg) slipped out of
-# every such pinch (tuning seeds 1006, 1008, 1010, 1011); 25 deg kept 3 of them.
+# such pinches (tuning seeds 1006, 1008, 1010, 1011 at 45 deg); at 25 deg 1008 and 1010 hold.
 MAX_FACE_LEAN_DEG = 25.0
 MAX_WIDTH_M = float(PAD_APERTURE_M[0]) - PRESHAPE_MARGIN_M
 # Pinch point above the table (fingertips reach ~15 mm below it); a model's grasp hint
