@@ -80,6 +80,12 @@ def support_face_hypotheses(
     # the model's exact corners make the hull's planes exact (samples miss edges)
     corners = np.asarray(getattr(model, "vertexes", np.empty((0, 3))), dtype=np.float64)
     rests = stable_hull_normals(np.vstack([corners.reshape(-1, 3), pts]), centre=pts.mean(axis=0))
+    normals = [
+        np.asarray(face.normal, dtype=np.float64)
+        for face in faces
+        if np.max(pts @ face.normal) <= face.offset + 0.02 * surface.size
+    ]  # support faces: no model points beyond them
+    normals += [n for n in rests if all(n @ m < 0.999 for m in normals)]
     out: list[PoseHypothesis] = []
     for seg in segments:
         # off the table's noise band (stereo noise near the table joins the segment)
@@ -91,12 +97,6 @@ def support_face_hypotheses(
             continue  # larger than the model: not one object of it
         starts: list[PoseHypothesis] = []
         seg_angle = principal_angle(seg_pts[:, :2])
-        normals = [
-            np.asarray(face.normal, dtype=np.float64)
-            for face in faces
-            if np.max(pts @ face.normal) <= face.offset + 0.02 * surface.size
-        ]  # support faces: no model points beyond them
-        normals += [n for n in rests if all(n @ m < 0.999 for m in normals)]
         for n in normals:
             R0 = rotation_between(n, -up)
             rotated = pts @ R0.T

@@ -1111,6 +1111,14 @@ def _unexplained_segments(
     return out
 
 
+def _model_surface(model: Any, pts: FloatArray) -> ModelSurface:
+    """The model's own :class:`ModelSurface` when it holds ``pts``, else one built from them."""
+    surface = getattr(model, "surface", None)
+    if not isinstance(surface, ModelSurface) or surface.points is not pts:
+        surface = ModelSurface.from_arrays(pts, model.surface_normals())
+    return surface
+
+
 def _hop(
     best: PoseHypothesis, model: Any, objects: FloatArray, d: float, rng: np.random.Generator
 ) -> list[PoseHypothesis]:
@@ -1149,9 +1157,7 @@ def _hop(
             T[:3, 3] = R @ (T0[:3, 3] - pivot) + pivot
             T[2, 3] += low - float(np.min(pts @ T[2, :3] + T[2, 3]))
             starts.append(T)
-    surface = getattr(model, "surface", None)
-    if not isinstance(surface, ModelSurface) or surface.points is not pts:
-        surface = ModelSurface.from_arrays(pts, model.surface_normals())
+    surface = _model_surface(model, pts)
     verified = verify_hypotheses(
         [PoseHypothesis(T, T[:3, 3].copy()) for T in starts],
         surface,
@@ -1172,14 +1178,10 @@ def _refine_near(
     hyps: list[PoseHypothesis], model: Any, objects: FloatArray, d: float, rng: np.random.Generator
 ) -> list[PoseHypothesis]:
     """ICP-refine coarse poses on the object points near each (model -> world)."""
-    from mks_sim.models.refine import ModelSurface, verify_hypotheses
-
     if not hyps or len(objects) < 10:
         return []
     pts = np.asarray(model.surface_points(), dtype=np.float64)
-    surface = getattr(model, "surface", None)
-    if not isinstance(surface, ModelSurface) or surface.points is not pts:
-        surface = ModelSurface.from_arrays(pts, model.surface_normals())
+    surface = _model_surface(model, pts)
     centre = pts.mean(axis=0)
     radius = float(np.max(np.linalg.norm(pts - centre, axis=1)))
     out: list[PoseHypothesis] = []
