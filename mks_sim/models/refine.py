@@ -33,6 +33,7 @@ __all__ = [
     "detect_symmetries",
     "group_equivalent",
     "icp_point_to_plane",
+    "principal_half_turns",
     "batch_inlier_fractions",
     "score_pose",
     "verify_hypotheses",
@@ -343,6 +344,30 @@ def group_equivalent(
                     continue
         reps.append(i)
     return labels
+
+
+def principal_half_turns(points: ArrayLike) -> FloatArray:
+    """Half turns about a point set's three principal axes through its centroid.
+
+    A rounded shape seen from one side fits its own half-turned copy almost as well (the
+    visible cap of an egg fits either end): these are the poses to try against a found one.
+
+    Args:
+        points: (M, 3) model surface samples (model frame).
+
+    Returns:
+        (3, 4, 4) transforms ``p -> c + R (p - c)``, ``R`` a half turn about a principal axis.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    c = p.mean(axis=0)
+    _, vecs = np.linalg.eigh(np.cov((p - c).T))
+    out = np.repeat(np.eye(4)[None], 3, axis=0)
+    for k in range(3):
+        a = vecs[:, k]
+        R = 2.0 * np.outer(a, a) - np.eye(3)  # rotation by pi about a
+        out[k, :3, :3] = R
+        out[k, :3, 3] = c - R @ c
+    return out
 
 
 def detect_symmetries(
