@@ -97,3 +97,87 @@ def test_hop_recovers_the_true_pose(case: str) -> None:
     assert hops, "no restart converged"
     position, rotation = _errors(np.asarray(hops[0].matrix), T)
     assert position < 1e-3 and rotation < 1.0, (position, rotation)
+
+
+def test_support_faces_only_for_what_can_rest_on_the_table() -> None:
+    """Support-face hypotheses put the model on the table: for points resting there they
+    recover the pose; for the same points lifted 10 cm (the bracket held in the hand after a
+    grasp, over its 76 mm diagonal above the table) there are none - they would put it back
+    on the table, 10 cm below everything the sensors saw."""
+    from mks_sim.localization.hypotheses import support_face_hypotheses
+    from mks_sim.localization.pipeline import Segment
+    from mks_sim.lowlevel.regions import Plane
+
+    model = PolyhedralModel.from_mesh(_bracket(), "l_bracket")
+    rng = np.random.default_rng(5)
+    table = Plane(np.array([0.0, 0.0, 1.0]), 0.75)
+    # lying flat on one side: the 25 mm extrusion axis vertical, lowest point on the table
+    R = np.eye(3)
+    low = float((model.surface_points() @ R.T)[:, 2].min())
+    T = make_transform(R, np.array([0.02, -0.01, 0.75 - low]))
+    seen = _seen_from_above(model, T, rng)
+
+    def segment(points: np.ndarray) -> Segment:
+        return Segment(np.arange(len(points)), points, (), None, False)
+
+    resting = support_face_hypotheses(model, [segment(seen)], table, 0.002, 0.002, rng, {})
+    assert resting
+    pos, rot = _errors(resting[0].matrix, T)
+    assert pos < 0.003 and rot < 3.0, (pos, rot)
+    lifted = seen + [0.0, 0.0, 0.1]
+    assert support_face_hypotheses(model, [segment(lifted)], table, 0.002, 0.002, rng, {}) == []
+
+
+def test_hop_skips_starts_that_are_the_best_under_a_symmetry(monkeypatch) -> None:
+    """A cube turned about its own centre is the same placement: `_hop` restarts ICP only
+    from starts that differ from the best by more than 8 deg / 5 % of the size under every
+    one of the cube's 24 rotations (enumerated here as the signed permutation matrices of
+    determinant +1), and keeps every start of the asymmetric bracket."""
+    import itertools
+
+    import mks_sim.localization.pipeline as pl
+    from mks_sim.models.pose import PoseHypothesis
+
+    cube24 = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((-1.0, 1.0), repeat=3):
+            S = np.zeros((3, 3))
+            S[range(3), perm] = signs
+            if np.linalg.det(S) > 0:
+                cube24.append(S)
+    assert len(cube24) == 24
+    seen: list[list[np.ndarray]] = []
+    real = pl.verify_hypotheses
+
+    def spy(hyps, *args, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append([np.asarray(h.matrix) for h in hyps])
+        return real(hyps, *args, **kwargs)
+
+    monkeypatch.setattr(pl, "verify_hypotheses", spy)
+    rng = np.random.default_rng(4)
+    cube = PolyhedralModel.from_mesh(box_mesh((0.05, 0.05, 0.05)), "cube")
+    T = make_transform(rotation_about(np.array([0.0, 0.0, 1.0]), 0.3), np.array([0, 0, 0.775]))
+    points = _seen_from_above(cube, T, rng)
+    _hop(PoseHypothesis(T, T[:3, 3].copy()), cube, points, 0.002, rng)
+    starts = seen[-1]
+    assert starts
+    for S in starts:
+        same = min(
+            float(
+                np.degrees(
+                    np.arccos(np.clip((np.trace(S[:3, :3].T @ T[:3, :3] @ Q) - 1) / 2, -1, 1))
+                )
+            )
+            for Q in cube24
+        )
+        assert same > 8.0 or np.linalg.norm(S[:3, 3] - T[:3, 3]) > 0.05 * cube.surface.size
+    bracket = PolyhedralModel.from_mesh(_bracket(), "l_bracket")
+    Tb = make_transform(np.eye(3), np.array([0.0, 0.0, 0.76]))
+    _hop(
+        PoseHypothesis(Tb, Tb[:3, 3].copy()),
+        bracket,
+        _seen_from_above(bracket, Tb, rng),
+        0.002,
+        rng,
+    )
+    assert len(seen[-1]) > len(starts)  # the bracket's turns about its centre are all kept

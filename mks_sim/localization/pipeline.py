@@ -1192,6 +1192,14 @@ def _hop(
             T[:3, 3] = R @ (T0[:3, 3] - pivot) + pivot
             T[2, 3] += low - float(np.min(pts @ T[2, :3] + T[2, 3]))
             starts.append(T)
+    # starts that are the best itself under a symmetry of the model (the cube turned about
+    # its centre) would only find it again
+    same = group_equivalent(
+        [T0, *starts], model.symmetries(), rotation_tol_deg=8.0, translation_tol=0.05 * size
+    )
+    starts = [T for T, label in zip(starts, same[1:], strict=True) if label != 0]
+    if not starts:
+        return []
     surface = _model_surface(model, pts)
     verified = verify_hypotheses(
         [PoseHypothesis(T, T[:3, 3].copy()) for T in starts],
