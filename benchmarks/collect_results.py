@@ -20,8 +20,8 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ORDER = (
-    "spg", "localize", "localize_sim", "freeform", "env", "grasp", "objects", "bin", "backends",
-    "grasp_synthesis",
+    "spg", "localize", "localize_sim", "freeform", "env", "grasp", "objects",
+    "objects_localization", "bin", "backends", "grasp_synthesis",
 )
 HEADER = """# Benchmark results
 

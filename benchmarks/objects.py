@@ -156,7 +156,8 @@ def main() -> int:
                     print(f"{obj:10s} {stage:12s} {mode:20s} {ok}/{len(res)}", file=sys.stderr)
             rows.append(row)
     lines = [
-        "# Objects at random resting poses (benchmarks/objects.py)",
+        "# Objects at random resting poses (benchmarks/objects.py)"
+        + (", localization only" if args.no_grasp else ""),
         "",
         *header,
         "",

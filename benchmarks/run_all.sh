@@ -14,7 +14,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
 PROFILE=${BENCH_PROFILE:-full}
-ONLY=${BENCH_ONLY:-spg localize localize_sim freeform env grasp objects bin backends grasp_synthesis}
+ONLY=${BENCH_ONLY:-spg localize localize_sim freeform env grasp objects objects_localization bin backends grasp_synthesis}
 R=benchmarks/results
 
 load=$(cut -d' ' -f1 /proc/loadavg)
@@ -66,6 +66,7 @@ run freeform $PY benchmarks/freeform.py --trials $FF_TRIALS --cv-contrib venv  #
 run env $PY benchmarks/env.py
 run grasp $PY benchmarks/grasp.py --episodes $GRASP_EP --env-episodes $ENV_EP --workers 2
 run objects $PY benchmarks/objects.py --n $OBJ_N --n-failed $OBJ_NF --workers 2 --out $R/objects.md
+run objects_localization $PY benchmarks/objects.py --n $OBJ_N --no-grasp --workers 2 --out $R/objects_localization.md  # both modes over --n seeds
 run bin $PY benchmarks/bin.py --n $BIN_N --workers 2 --out $R/bin.md
 run backends $PY benchmarks/backends.py --episodes $BACK_EP --out $R/backends.md
 run grasp_synthesis $PY benchmarks/grasp_synthesis.py
