@@ -95,7 +95,7 @@ def support_face_hypotheses(
         if float(table.distance(seg_pts).min()) > surface.size:
             # higher over the table than the model reaches: not resting on it (held in the
             # hand: the L-bracket lifted 10 cm was put back on the table by its support faces
-            # and the grasp judged a slip, tuning seeds 1006, 1011, 1015, 1020, 1031)
+            # and the grasp judged a slip, tuning seeds 1006, 1011, 1020, 1031)
             continue
         xy = seg_pts[:, :2] - seg_pts[:, :2].mean(axis=0)
         if 2.0 * float(np.percentile(np.linalg.norm(xy, axis=1), 98)) > 1.3 * surface.size:
