@@ -4,6 +4,9 @@ generated blob was localized 178 deg off about its long axis)."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 
 from mks_sim.geometry.meshes import Mesh
@@ -13,7 +16,9 @@ from mks_sim.localization.pipeline import _segment_verified
 from mks_sim.models.freeform import FreeformModel
 from mks_sim.models.pose import PoseHypothesis
 from mks_sim.models.refine import ModelSurface, principal_half_turns, verify_hypotheses
-from tests._gen_meshes import blob
+
+sys.path.insert(0, str(Path(__file__).parent))
+import _gen_meshes as gen  # noqa: E402
 
 
 def test_principal_half_turns_are_half_turns_about_the_axes() -> None:
@@ -33,7 +38,7 @@ def test_principal_half_turns_are_half_turns_about_the_axes() -> None:
 
 
 def test_a_half_turned_start_is_turned_back() -> None:
-    tm = blob()
+    tm = gen.blob()
     mesh = Mesh(np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64))
     model = FreeformModel.from_mesh(mesh, "blob")
     surface = ModelSurface.from_arrays(model.surface_points(), model.surface_normals())

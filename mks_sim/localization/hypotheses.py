@@ -89,10 +89,12 @@ def support_face_hypotheses(
     out: list[PoseHypothesis] = []
     for seg in segments:
         # off the table's noise band (stereo noise near the table joins the segment)
-        seg_pts = seg.points[table.distance(seg.points) > band]
+        height = table.distance(seg.points)
+        above = height > band
+        seg_pts = seg.points[above]
         if len(seg_pts) < 30:
             continue
-        if float(table.distance(seg_pts).min()) > surface.size:
+        if float(height[above].min()) > surface.size:
             # higher over the table than the model reaches: not resting on it (held in the
             # hand: the L-bracket lifted 10 cm was put back on the table by its support faces
             # and the grasp judged a slip, tuning seeds 1006, 1011, 1020, 1031)

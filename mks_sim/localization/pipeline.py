@@ -59,6 +59,7 @@ from mks_sim.models.pose import PoseHypothesis
 from mks_sim.models.refine import (
     ModelSurface,
     group_equivalent,
+    merge_verified,
     principal_half_turns,
     verify_hypotheses,
 )
@@ -307,7 +308,9 @@ def _segment_verified(
 ) -> tuple[list[tuple[PoseHypothesis, Any]], float, float]:
     """One segment's verification: the hypotheses refined and scored; when the best scores
     under ``min_score`` and ``model`` is polyhedral (not None), plane-pair hypotheses
-    (``plane_pairs()``: too few vertexes visible) refined too; every score multiplied by
+    (``plane_pairs()``: too few vertexes visible) refined too; when ``model`` is None
+    (free-form), ICP also from the best's half turns about the model's principal axes
+    (:func:`~mks_sim.models.refine.principal_half_turns`), merged; every score multiplied by
     the coverage of the model's surface (its fixed sampling within ``cover_distance`` of a
     segment point, over :data:`VISIBLE_FRACTION`; density independent).
 
@@ -376,14 +379,7 @@ def _segment_verified(
             rng=rng,
             **verify_options,
         )
-        merged = sorted(verified + turned, key=lambda v: (-v.hypothesis.score, v.hypothesis.rmse))
-        keep = group_equivalent(
-            [v.hypothesis.matrix for v in merged],
-            syms,
-            rotation_tol_deg=3.0,
-            translation_tol=max(inlier, 0.01 * surface.size),
-        )
-        verified = [v for i, v in enumerate(merged) if keep[i] == i]
+        verified = merge_verified(verified + turned, syms, max(inlier, 0.01 * surface.size))
         t_ver += time.perf_counter() - t
     if not verified:
         return [], t_hyp, t_ver

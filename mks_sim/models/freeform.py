@@ -68,6 +68,7 @@ from mks_sim.models.refine import (
     ModelSurface,
     VerifiedHypothesis,
     group_equivalent,
+    merge_verified,
     verify_hypotheses,
 )
 
@@ -564,17 +565,9 @@ class FreeformModel:
         rest = [h for h in rest if id(h) in chosen]
         if not rest:
             return first
-        merged = sorted(
-            first + verify(rest, len(rest)),
-            key=lambda v: (-v.hypothesis.score, v.hypothesis.rmse),
+        return merge_verified(
+            first + verify(rest, len(rest)), self._symmetries, max(d_in, 0.01 * size)
         )
-        keep = group_equivalent(
-            [v.hypothesis.matrix for v in merged],
-            self._symmetries,
-            rotation_tol_deg=3.0,
-            translation_tol=max(d_in, 0.01 * size),
-        )
-        return [v for i, v in enumerate(merged) if keep[i] == i]
 
     def scaled(self, factor: float) -> FreeformModel:
         """The same model with every length multiplied by ``factor`` (e.g. 0.001: mm -> m).

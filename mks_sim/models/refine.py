@@ -33,6 +33,7 @@ __all__ = [
     "detect_symmetries",
     "group_equivalent",
     "icp_point_to_plane",
+    "merge_verified",
     "principal_half_turns",
     "batch_inlier_fractions",
     "score_pose",
@@ -344,6 +345,23 @@ def group_equivalent(
                     continue
         reps.append(i)
     return labels
+
+
+def merge_verified(
+    verified: Sequence[VerifiedHypothesis],
+    symmetries: ArrayLike | None,
+    translation_tol: float,
+) -> list[VerifiedHypothesis]:
+    """Verified hypotheses of several verification runs as one list: best score first (then
+    lowest residual), one per placement up to a symmetry (3 deg, ``translation_tol``)."""
+    merged = sorted(verified, key=lambda v: (-v.hypothesis.score, v.hypothesis.rmse))
+    keep = group_equivalent(
+        [v.hypothesis.matrix for v in merged],
+        symmetries,
+        rotation_tol_deg=3.0,
+        translation_tol=translation_tol,
+    )
+    return [v for i, v in enumerate(merged) if keep[i] == i]
 
 
 def principal_half_turns(points: ArrayLike) -> FloatArray:
