@@ -106,6 +106,11 @@ class _FakeHand:
 
         return np.ones(3)
 
+    def finger_qpos(self):
+        import numpy as np
+
+        return np.full(3, 0.9)  # closed on a part
+
 
 @pytest.mark.parametrize("hang_m", [0.01, 0.09])
 def test_a_held_part_is_lowered_into_the_box_middle_first(hang_m):
@@ -133,3 +138,72 @@ def test_a_held_part_is_lowered_into_the_box_middle_first(hang_m):
     for p in hand.path[:-1]:  # the carry, before the last move down into the box
         low = min((corners_pinch @ R.T + p)[:, 2].min(), p[2] - binmod.TIPS_BELOW_PINCH_M)
         assert low >= table_z + binmod.BIN_WALL_M + binmod.CARRY_MARGIN_M - 1e-9
+
+
+def test_pads_pressed_on_each_other_hold_nothing():
+    """The pads touch but the fingers are closed past where any bin grasp stops: the part
+    slipped out, nothing is held; the same touch with the fingers stopped by a part is a
+    hold."""
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+
+    class Hand:
+        def __init__(self, q):
+            self.q = q
+
+        def touch(self):
+            return np.array([12.0, 0.0, 12.0])  # finger 1 against finger 3
+
+        def finger_qpos(self):
+            return np.array(self.q)
+
+    assert not binmod._held(Hand([1.32, 1.35, 1.30]), 0.1)
+    assert binmod._held(Hand([0.9, 1.35, 0.9]), 0.1)
+
+
+def test_parts_let_go_in_the_box_do_not_overlap():
+    """Six 100 x 60 mm footprints placed one after another (place_middle) lie inside the box's
+    walls; the first four (two by two fit the 240 x 200 mm box with its margins) do not
+    overlap each other, and no later one lies on more than a quarter of another (brute
+    force over rectangles)."""
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+
+    half = np.array([0.05, 0.03])
+    placed: list[np.ndarray] = []
+    for _ in range(6):
+        m = binmod.place_middle(half, placed)
+        placed.append(np.concatenate([m - half, m + half]))
+    c = np.asarray(binmod.OUTPUT_BOX_XY)
+    wall_inside = np.asarray(binmod.OUTPUT_BOX_HALF_XY) - 0.004  # the walls are 8 mm thick
+    for r in placed:
+        assert np.all(r[:2] >= c - wall_inside) and np.all(r[2:] <= c + wall_inside), r
+    for i in range(6):
+        for j in range(i):
+            a, b = placed[i], placed[j]
+            w = min(a[2], b[2]) - max(a[0], b[0])
+            h = min(a[3], b[3]) - max(a[1], b[1])
+            shared = max(w, 0.0) * max(h, 0.0)
+            assert shared <= (0.0 if i < 4 else 0.25 * 0.1 * 0.06), (i, j, a, b)
+
+
+def test_a_carried_part_is_turned_to_lie_along_the_box():
+    """A 100 x 60 mm part carried at 30 deg is turned by -30 deg (its smallest bounding
+    rectangle, long side along x); one lying along y by 90 deg."""
+    import itertools
+
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+
+    corners = np.array(list(itertools.product((-0.05, 0.05), (-0.03, 0.03), (0.0, 0.02))))
+    a = np.radians(30.0)
+    Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    pos = np.array([0.1, 0.2, 0.9])
+    W = corners @ Rz.T + pos
+    assert np.degrees(binmod._turn_to_fit(W, pos)) == pytest.approx(-30.0)
+    assert binmod._turn_to_fit(corners + pos, pos) == 0.0
+    along_y = corners[:, [1, 0, 2]] + pos
+    assert abs(np.degrees(binmod._turn_to_fit(along_y, pos))) == pytest.approx(90.0)

@@ -285,11 +285,21 @@ def run_localize_all(
 
 # --------------------------------------------------------------------------- clear_bin
 
-#: Output box beside the bin (worlds/bin.toml: inner 140 x 140 mm centred here): parts are
-#: released this high above the table over its centre.
-OUTPUT_BOX_XY = (-0.264, 0.22)
-OUTPUT_BOX_HALF_M = 0.07
+#: Output box beside the bin (worlds/bin.toml: 240 x 200 mm between its walls' centres,
+#: centred here): parts are released this high above the table over its centre.
+OUTPUT_BOX_XY = (-0.314, 0.22)
+OUTPUT_BOX_HALF_XY = (0.12, 0.1)
 RELEASE_HEIGHT_M = 0.14
+#: A part is let go with its predicted footprint this far inside the box's walls' centres
+#: (the walls are 8 mm thick), where it overlaps least the parts let go before. Not less:
+#: a part held off its centre of mass turns in the grasp and hangs up to ~30 mm from where
+#: its estimate says (tuning bin 6: one let go over the wall, which a 6 mm margin allowed).
+PLACE_MARGIN_M = 0.015
+#: Candidate places of a part's middle: a grid of this many per side over the room left.
+PLACE_GRID = 23
+#: A part carried top-down is turned about the vertical by at most 90 degrees, in these
+#: steps, so that its footprint's bounding rectangle is smallest (parts lie side by side).
+PLACE_TURN_STEP_DEG = 15.0
 #: The box's walls are this high (worlds/bin.toml: 30 mm), the bin's 40 mm: a carried part's
 #: lowest point keeps ``CARRY_MARGIN_M`` above the higher of them on the way.
 BOX_WALL_M = 0.03
@@ -373,8 +383,8 @@ def in_output_box(world: World, body: str) -> bool:
 
     p = truth.object_to_world(world, body)[:3, 3]
     return bool(
-        abs(p[0] - OUTPUT_BOX_XY[0]) < OUTPUT_BOX_HALF_M
-        and abs(p[1] - OUTPUT_BOX_XY[1]) < OUTPUT_BOX_HALF_M
+        abs(p[0] - OUTPUT_BOX_XY[0]) < OUTPUT_BOX_HALF_XY[0]
+        and abs(p[1] - OUTPUT_BOX_XY[1]) < OUTPUT_BOX_HALF_XY[1]
         and p[2] < world.scene.support_z + 0.08
     )
 
@@ -488,6 +498,7 @@ class BinPicker:
         self._grasp_memo: tuple[Any, int, str, list[Any]] | None = None
         self._used_views: list[int] = []
         self.view_gains: dict[int, int] = {}
+        self.placed: list[np.ndarray] = []  # footprints of the parts let go in the box
 
     def sense(self) -> list[Any]:
         """Every instance found, best score first (``Instance``), from one view or more.
@@ -743,7 +754,7 @@ class BinPicker:
             part_to_pinch = np.linalg.inv(pinch_to_world) @ T
             failure = _carry_to_box(
                 ctl, V @ part_to_pinch[:3, :3].T + part_to_pinch[:3, 3], self.table_z, keep,
-                TOUCH_THRESHOLD_N,
+                TOUCH_THRESHOLD_N, placed=self.placed,
             )  # fmt: skip
             ok = not failure
         elif ok:
@@ -1071,9 +1082,62 @@ def _reached(ctl: Any, pos: np.ndarray, rotation: np.ndarray) -> bool:
 
 
 def _held(ctl: Any, touch_n: float) -> bool:
-    """Finger 1 and finger 2 or 3 touch (a failed pad reads nan: no touch)."""
+    """Finger 1 and finger 2 or 3 touch (a failed pad reads nan: no touch), and the fingers
+    are not closed past :data:`EMPTY_HAND_Q`: with the part slipped out, the pads press on
+    each other and touch (tuning bin 6: three parts "held" all the way to the box, left
+    in the bin)."""
     t = np.nan_to_num(ctl.touch(), nan=-1.0)
+    if float(np.min(ctl.finger_qpos())) > EMPTY_HAND_Q:
+        return False
     return bool(t[0] > touch_n and max(t[1], t[2]) > touch_n)
+
+
+def _rect_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Overlap areas of axis-aligned rectangles ``a`` (N, 4) with ``b`` (4,), rows
+    (xmin, ymin, xmax, ymax)."""
+    w = np.minimum(a[:, 2], b[2]) - np.maximum(a[:, 0], b[0])
+    h = np.minimum(a[:, 3], b[3]) - np.maximum(a[:, 1], b[1])
+    return np.clip(w, 0.0, None) * np.clip(h, 0.0, None)
+
+
+def place_middle(
+    half_xy: np.ndarray, placed: Sequence[np.ndarray], *, box_xy: Sequence[float] = OUTPUT_BOX_XY
+) -> np.ndarray:
+    """Where in the output box a part's middle goes: on a :data:`PLACE_GRID` grid over the
+    room its footprint leaves (``half_xy``, the half sides of its bounding rectangle,
+    :data:`PLACE_MARGIN_M` inside the walls' centres), the place whose rectangle overlaps
+    least those of the parts let go before (``placed``: rows (xmin, ymin, xmax, ymax), the
+    robot's own record, nothing sensed); of equals, the first from the box's -x, -y corner
+    (row by row: the parts fill the box from one side, leaving room for the next). A
+    footprint wider than the box goes to its centre along that side.
+    """
+    half = np.asarray(half_xy, dtype=float)
+    room = np.maximum(np.asarray(OUTPUT_BOX_HALF_XY) - PLACE_MARGIN_M - half, 0.0)
+    u = np.linspace(-1.0, 1.0, PLACE_GRID)
+    grid = np.stack(np.meshgrid(u, u, indexing="ij"), axis=-1).reshape(-1, 2) * room
+    grid += np.asarray(box_xy, dtype=float)
+    rects = np.hstack([grid - half, grid + half])
+    overlap = np.zeros(len(grid))
+    for r in np.asarray(placed, dtype=float).reshape(-1, 4):
+        overlap += _rect_overlap(rects, r)
+    return np.asarray(grid[int(np.argmin(np.round(overlap * 1e6)))])  # mm^2: ties go first
+
+
+def _turn_to_fit(W: np.ndarray, pos: np.ndarray) -> float:
+    """The turn (radians, |turn| <= 90 deg, in :data:`PLACE_TURN_STEP_DEG` steps) about the
+    vertical through the pinch point ``pos`` that makes the footprint of the carried part
+    ``W`` (N, 3) the smallest bounding rectangle, its long side along x (the box's); the
+    smallest such turn."""
+    steps = np.radians(np.arange(-90.0, 90.0 + 1e-9, PLACE_TURN_STEP_DEG))
+    steps = steps[np.argsort(np.abs(steps), kind="stable")]
+    d = W[:, :2] - pos[:2]
+    areas = []
+    for a in steps:
+        c, s = np.cos(a), np.sin(a)
+        q = d @ np.array([[c, s], [-s, c]])
+        ext = q.max(axis=0) - q.min(axis=0)
+        areas.append((round(ext[0] * ext[1] * 1e6), ext[0] < ext[1]))  # mm^2, then along x
+    return float(steps[min(range(len(steps)), key=areas.__getitem__)])
 
 
 def _carry_to_box(
@@ -1082,6 +1146,8 @@ def _carry_to_box(
     table_z: float,
     rotation: np.ndarray | None,
     touch_n: float,
+    *,
+    placed: list[np.ndarray] | None = None,
 ) -> str:
     """Carry the held part over the output box and lower it in; "" or why not.
 
@@ -1092,22 +1158,35 @@ def _carry_to_box(
         table_z: the table top (the box's floor), metres.
         rotation: the hand's rotation to keep (a tilted grasp), or None (top-down, its yaw).
         touch_n: the pads' contact threshold, N.
+        placed: the footprints (xmin, ymin, xmax, ymax) of the parts let go in the box
+            before (:func:`place_middle`); this part's is appended when it is let go. None:
+            the box's centre.
 
-    The part's middle goes over the box's centre with its lowest point (or the fingertips')
-    ``CARRY_MARGIN_M`` above the walls on the way, then down to ``RELEASE_GAP_M`` above the
-    box's rim.
+    The part's middle goes over its place in the box with its lowest point (or the
+    fingertips') ``CARRY_MARGIN_M`` above the walls on the way, then down to
+    ``RELEASE_GAP_M`` above the box's rim. A part carried top-down (``rotation`` None) is
+    turned on the way so that its footprint's bounding rectangle is smallest.
     """
     pos, yaw = ctl.pinch_pos(), ctl.pinch_yaw()
     R = ctl.pinch_rotation()
     W = part_pinch @ R.T + pos  # (N, 3) the part as carried
     below = max(pos[2] - float(W[:, 2].min()), TIPS_BELOW_PINCH_M)
-    lo, hi = W[:, :2].min(axis=0), W[:, :2].max(axis=0)
-    middle_off = 0.5 * (lo + hi) - pos[:2]
     travel_z = max(pos[2], table_z + max(BIN_WALL_M, BOX_WALL_M) + CARRY_MARGIN_M + below)
     release_z = table_z + BOX_WALL_M + RELEASE_GAP_M + below
-    over = np.array([*(np.asarray(OUTPUT_BOX_XY) - middle_off), travel_z])
+    turn = _turn_to_fit(W, pos) if (rotation is None and placed is not None) else 0.0
+    c, s = np.cos(turn), np.sin(turn)
+    Wxy = (W[:, :2] - pos[:2]) @ np.array([[c, s], [-s, c]]) + pos[:2]
+    lo, hi = Wxy.min(axis=0), Wxy.max(axis=0)
+    middle_off = 0.5 * (lo + hi) - pos[:2]
+    if placed is None:
+        middle = np.asarray(OUTPUT_BOX_XY, dtype=float)
+    else:
+        middle = place_middle(0.5 * (hi - lo), placed)
+        placed.append(np.concatenate([middle - 0.5 * (hi - lo), middle + 0.5 * (hi - lo)]))
+    over = np.array([*(middle - middle_off), travel_z])
     if travel_z > pos[2] + 0.005:
         ctl.move_to(np.array([pos[0], pos[1], travel_z]), yaw, spacing_m=0.01, rotation=rotation)
+    yaw += turn
     ctl.move_to(over, yaw, spacing_m=0.02, rotation=rotation)
     ctl.move_to(np.array([over[0], over[1], release_z]), yaw, spacing_m=0.01, rotation=rotation)
     return "" if _held(ctl, touch_n) else "dropped while carried"
