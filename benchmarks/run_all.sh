@@ -39,6 +39,7 @@ SIM_N=${BENCH_SIM_N:-$SIM_N}; GRASP_EP=${BENCH_GRASP_EP:-$GRASP_EP}; OBJ_N=${BEN
 ENV_EP=${BENCH_ENV_EP:-$ENV_EP}
 OBJ_NF=${BENCH_OBJ_NF:-$OBJ_N}  # objects with the range finder failed (stereo grasps: 40-90 s)
 BIN_N=${BENCH_BIN_N:-$BIN_N}; BACK_EP=${BENCH_BACK_EP:-$BACK_EP}
+BIN_NF=${BENCH_BIN_NF:-$BIN_N}  # bins cleared with the range finder failed (2-3x a healthy bin)
 
 settle() {  # wait (up to 5 min) for the previous script's load to decay below 1
   local i=0 l
@@ -67,7 +68,7 @@ run env $PY benchmarks/env.py
 run grasp $PY benchmarks/grasp.py --episodes $GRASP_EP --env-episodes $ENV_EP --workers 2
 run objects $PY benchmarks/objects.py --n $OBJ_N --n-failed $OBJ_NF --workers 2 --out $R/objects.md
 run objects_localization $PY benchmarks/objects.py --n $OBJ_N --no-grasp --workers 2 --out $R/objects_localization.md  # both modes over --n seeds
-run bin $PY benchmarks/bin.py --n $BIN_N --workers 2 --out $R/bin.md
+run bin $PY benchmarks/bin.py --n $BIN_N --n-failed $BIN_NF --workers 2 --out $R/bin.md
 run backends $PY benchmarks/backends.py --episodes $BACK_EP --out $R/backends.md
 run grasp_synthesis $PY benchmarks/grasp_synthesis.py
 $PY benchmarks/collect_results.py
