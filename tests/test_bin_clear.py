@@ -207,3 +207,76 @@ def test_a_carried_part_is_turned_to_lie_along_the_box():
     assert binmod._turn_to_fit(corners + pos, pos) == 0.0
     along_y = corners[:, [1, 0, 2]] + pos
     assert abs(np.degrees(binmod._turn_to_fit(along_y, pos))) == pytest.approx(90.0)
+
+
+def _cand(turn_deg: float, x: float):
+    """A grasp candidate: the hand turned ``turn_deg`` about the vertical, pinching at x."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    a = np.radians(turn_deg)
+    R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    plan = SimpleNamespace(
+        preshape_q=0.3, pregrasp_world=np.array([x, 0.0, 0.9]), yaw_rad=a, target_rotation=None,
+        hand_rotation=R, grasp_point_world=np.array([x, 0.0, 0.8]),
+    )  # fmt: skip
+    return SimpleNamespace(
+        hand_rotation=R, pinch_world=np.array([x, 0.0, 0.8]), plan=lambda action: plan
+    )
+
+
+def test_grasps_that_failed_are_not_tried_again():
+    """A pick whose candidates are all out of reach returns them all as failed; a later
+    planning drops candidates alike them (within 25 deg and 10 mm) and keeps the others."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+
+    class NoReach:
+        def preshape(self, q, steps):
+            pass
+
+        def move_to(self, pos, yaw, spacing_m=0.01, rotation=None):
+            return False
+
+        def pinch_pos(self):
+            return np.zeros(3)  # stayed home, far from every target
+
+        def pinch_rotation(self):
+            return np.eye(3)
+
+    cands = [_cand(0.0, 0.0), _cand(90.0, 0.05)]
+    ok, why, _, failed = binmod._pick(NoReach(), cands, None, 0, None, 0.75, 0.1)
+    assert not ok and why.startswith("unreachable (2 pre-grasp")
+    assert {id(c) for c in failed} == {id(c) for c in cands}
+    robot = SimpleNamespace(failed_grasps=failed)
+    later = [_cand(10.0, 0.005), _cand(40.0, 0.0), _cand(90.0, 0.03)]
+    kept = binmod.BinPicker._untried(robot, later, "all")
+    assert [id(c) for c in kept] == [id(later[1]), id(later[2])]
+    assert len(binmod.BinPicker._untried(robot, later, "none")) == 3
+
+
+def test_a_grasp_that_reached_but_missed_may_be_tried_again():
+    """Reached, closed on one side only: the pick fails and no candidate is marked (the part
+    moved; the next try may hold)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+
+    class OneSide:
+        def preshape(self, q, steps):
+            pass
+
+        def move_to(self, pos, yaw, spacing_m=0.01, rotation=None):
+            return True
+
+        def close(self, threshold, yaw, rotation=None):
+            return SimpleNamespace(sides=lambda t: (True, False), finger_qpos=np.full(3, 0.9))
+
+    ok, why, _, failed = binmod._pick(OneSide(), [_cand(0.0, 0.0)], None, 0, None, 0.75, 0.1)
+    assert (ok, why, failed) == (False, "no two-sided contact", [])

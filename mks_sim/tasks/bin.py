@@ -499,6 +499,7 @@ class BinPicker:
         self._used_views: list[int] = []
         self.view_gains: dict[int, int] = {}
         self.placed: list[np.ndarray] = []  # footprints of the parts let go in the box
+        self.failed_grasps: list[Any] = []  # grasps the arm could not reach (not tried again)
 
     def sense(self) -> list[Any]:
         """Every instance found, best score first (``Instance``), from one view or more.
@@ -689,7 +690,7 @@ class BinPicker:
 
         memo = self._grasp_memo
         if memo is not None and memo[0] is self.sensed and memo[1:3] == (i, obstacles):
-            return list(memo[3])  # planned already for this sensing (active sensing's check)
+            return self._untried(memo[3], obstacles)  # planned already for this sensing
         T = self.sensed.instances.instances[i].matrix
         obs = None
         if obstacles != "none":
@@ -710,7 +711,19 @@ class BinPicker:
             min_width_m=BIN_MIN_WIDTH_M, max_face_lean_deg=BIN_MAX_FACE_LEAN_DEG,
         )  # fmt: skip
         self._grasp_memo = (self.sensed, i, obstacles, cands)
-        return cands
+        return self._untried(cands, obstacles)
+
+    def _untried(self, cands: Sequence[Any], obstacles: str) -> list[Any]:
+        """``cands`` without those alike (:func:`_alike`: the hand within 25 degrees and
+        10 mm) a grasp the arm could not reach before in this bin (:attr:`failed_grasps`:
+        the pre-grasp out of reach or the descent blocked; the same hand at the same place
+        fails the same way: tuning bin 11 spent its budget on 8 such picks). A grasp that
+        closed on one side, on nothing or slipped may be tried again: each try nudges the
+        part, and a fourth try held in tuning bin 8, a second in bin 13. ``obstacles="none"``
+        (the report's "blocked or without a pair") keeps them all."""
+        if obstacles == "none" or not self.failed_grasps:
+            return list(cands)
+        return [c for c in cands if not any(_alike(c, f) for f in self.failed_grasps)]
 
     def pick(
         self,
@@ -738,9 +751,10 @@ class BinPicker:
         ctl = self.ctl
         if instance is None and self._grasp_memo is not None and self._grasp_memo[0] is self.sensed:
             instance = self._grasp_memo[1]
-        ok, failure, pinch_to_world = _pick(
+        ok, failure, pinch_to_world, failed = _pick(
             ctl, cands, self.action, index, perturb, self.table_z, TOUCH_THRESHOLD_N
         )
+        self.failed_grasps += failed
         self.last_tilt_deg = float(
             np.degrees(np.arccos(np.clip(-ctl.pinch_rotation()[2, 2], -1, 1)))
         )
@@ -1024,12 +1038,15 @@ def _pick(
     perturb: PlanPerturbation | None,
     table_z: float,
     touch_n: float,
-) -> tuple[bool, str, np.ndarray | None]:
+) -> tuple[bool, str, np.ndarray | None, list[Any]]:
     """Reach, close and lift with the first reachable candidate. Returns (believed held,
-    failure reason, (4, 4) pinch-to-world where the hand closed when held, else None)."""
+    failure reason, (4, 4) pinch-to-world where the hand closed when held, else None, the
+    candidates the arm could not reach: not tried again, :meth:`BinPicker._untried`)."""
     plan = None
     no_ik = blocked = 0
+    tried: list[Any] = []
     for cand in _to_try(cands):
+        tried.append(cand)
         p = cand.plan(action)
         if perturb is not None:
             p = perturb(index, p)
@@ -1047,23 +1064,23 @@ def _pick(
         blocked += 1
         ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.02, rotation=rot)
     if plan is None:
-        return False, f"unreachable ({no_ik} pre-grasp, {blocked} descent blocked)", None
+        return False, f"unreachable ({no_ik} pre-grasp, {blocked} descent blocked)", None, tried
     rot = plan.target_rotation
     closed = ctl.close(threshold=touch_n, yaw=plan.yaw_rad, rotation=rot)
     a, b = closed.sides(touch_n)
     if not (a and b):
-        return False, "no two-sided contact", None
+        return False, "no two-sided contact", None, tried[:-1]
     if float(np.min(closed.finger_qpos)) > EMPTY_HAND_Q:
         # the pads touch each other: the hand closed on nothing
-        return False, "closed on nothing", None
+        return False, "closed on nothing", None, tried[:-1]
     pinch_to_world = np.eye(4)  # where the hand closed (after any re-centring)
     pinch_to_world[:3, :3], pinch_to_world[:3, 3] = ctl.pinch_rotation(), ctl.pinch_pos()
     up = np.asarray(plan.grasp_point_world, dtype=float).copy()
     up[2] = table_z + CLEARANCE_ABOVE_M
     ctl.move_to(up, plan.yaw_rad, spacing_m=0.01, rotation=rot)
     if not _held(ctl, touch_n):
-        return False, "slipped", None
-    return True, "", pinch_to_world
+        return False, "slipped", None, tried[:-1]
+    return True, "", pinch_to_world, tried[:-1]
 
 
 #: A move that ``move_to`` reports failed (a waypoint's IK on the way did not converge, or
