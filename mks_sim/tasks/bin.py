@@ -1176,8 +1176,8 @@ def _carry_to_box(
         rotation: the hand's rotation to keep (a tilted grasp), or None (top-down, its yaw).
         touch_n: the pads' contact threshold, N.
         placed: the footprints (xmin, ymin, xmax, ymax) of the parts let go in the box
-            before (:func:`place_middle`); this part's is appended when it is let go. None:
-            the box's centre.
+            before (:func:`place_middle`); this part's is appended once its place is chosen
+            (also when it is then dropped on the way). None: the box's centre.
 
     The part's middle goes over its place in the box with its lowest point (or the
     fingertips') ``CARRY_MARGIN_M`` above the walls on the way, then down to
