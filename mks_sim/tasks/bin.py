@@ -1070,8 +1070,7 @@ def _pick(
     a, b = closed.sides(touch_n)
     if not (a and b):
         return False, "no two-sided contact", None, tried[:-1]
-    if float(np.min(closed.finger_qpos)) > EMPTY_HAND_Q:
-        # the pads touch each other: the hand closed on nothing
+    if _hand_empty(closed.finger_qpos):
         return False, "closed on nothing", None, tried[:-1]
     pinch_to_world = np.eye(4)  # where the hand closed (after any re-centring)
     pinch_to_world[:3, :3], pinch_to_world[:3, 3] = ctl.pinch_rotation(), ctl.pinch_pos()
@@ -1098,13 +1097,19 @@ def _reached(ctl: Any, pos: np.ndarray, rotation: np.ndarray) -> bool:
     return bool(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))) <= REACHED_DEG)
 
 
+def _hand_empty(finger_qpos: np.ndarray) -> bool:
+    """The fingers closed past :data:`EMPTY_HAND_Q`: the pads touch each other, nothing is
+    between them (touch alone cannot tell)."""
+    return float(np.min(finger_qpos)) > EMPTY_HAND_Q
+
+
 def _held(ctl: Any, touch_n: float) -> bool:
     """Finger 1 and finger 2 or 3 touch (a failed pad reads nan: no touch), and the fingers
     are not closed past :data:`EMPTY_HAND_Q`: with the part slipped out, the pads press on
     each other and touch (tuning bin 6: three parts "held" all the way to the box, left
     in the bin)."""
     t = np.nan_to_num(ctl.touch(), nan=-1.0)
-    if float(np.min(ctl.finger_qpos())) > EMPTY_HAND_Q:
+    if _hand_empty(ctl.finger_qpos()):
         return False
     return bool(t[0] > touch_n and max(t[1], t[2]) > touch_n)
 
@@ -1117,9 +1122,7 @@ def _rect_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.clip(w, 0.0, None) * np.clip(h, 0.0, None)
 
 
-def place_middle(
-    half_xy: np.ndarray, placed: Sequence[np.ndarray], *, box_xy: Sequence[float] = OUTPUT_BOX_XY
-) -> np.ndarray:
+def place_middle(half_xy: np.ndarray, placed: Sequence[np.ndarray]) -> np.ndarray:
     """Where in the output box a part's middle goes: on a :data:`PLACE_GRID` grid over the
     room its footprint leaves (``half_xy``, the half sides of its bounding rectangle,
     :data:`PLACE_MARGIN_M` inside the walls' centres), the place whose rectangle overlaps
@@ -1132,12 +1135,19 @@ def place_middle(
     room = np.maximum(np.asarray(OUTPUT_BOX_HALF_XY) - PLACE_MARGIN_M - half, 0.0)
     u = np.linspace(-1.0, 1.0, PLACE_GRID)
     grid = np.stack(np.meshgrid(u, u, indexing="ij"), axis=-1).reshape(-1, 2) * room
-    grid += np.asarray(box_xy, dtype=float)
+    grid += np.asarray(OUTPUT_BOX_XY, dtype=float)
     rects = np.hstack([grid - half, grid + half])
     overlap = np.zeros(len(grid))
     for r in np.asarray(placed, dtype=float).reshape(-1, 4):
         overlap += _rect_overlap(rects, r)
     return np.asarray(grid[int(np.argmin(np.round(overlap * 1e6)))])  # mm^2: ties go first
+
+
+def _turned(d: np.ndarray, angle: float) -> np.ndarray:
+    """(N, 2) offsets ``d`` turned by ``angle`` (radians, counter-clockwise seen from above:
+    as the hand's yaw grows)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.asarray(d) @ np.array([[c, s], [-s, c]])
 
 
 def _turn_to_fit(W: np.ndarray, pos: np.ndarray) -> float:
@@ -1150,8 +1160,7 @@ def _turn_to_fit(W: np.ndarray, pos: np.ndarray) -> float:
     d = W[:, :2] - pos[:2]
     areas = []
     for a in steps:
-        c, s = np.cos(a), np.sin(a)
-        q = d @ np.array([[c, s], [-s, c]])
+        q = _turned(d, a)
         ext = q.max(axis=0) - q.min(axis=0)
         areas.append((round(ext[0] * ext[1] * 1e6), ext[0] < ext[1]))  # mm^2, then along x
     return float(steps[min(range(len(steps)), key=areas.__getitem__)])
@@ -1191,8 +1200,7 @@ def _carry_to_box(
     travel_z = max(pos[2], table_z + max(BIN_WALL_M, BOX_WALL_M) + CARRY_MARGIN_M + below)
     release_z = table_z + BOX_WALL_M + RELEASE_GAP_M + below
     turn = _turn_to_fit(W, pos) if (rotation is None and placed is not None) else 0.0
-    c, s = np.cos(turn), np.sin(turn)
-    Wxy = (W[:, :2] - pos[:2]) @ np.array([[c, s], [-s, c]]) + pos[:2]
+    Wxy = _turned(W[:, :2] - pos[:2], turn) + pos[:2]
     lo, hi = Wxy.min(axis=0), Wxy.max(axis=0)
     middle_off = 0.5 * (lo + hi) - pos[:2]
     if placed is None:
