@@ -7,7 +7,7 @@ import pytest
 
 from mks_sim.errors import SpecError
 from mks_sim.sim import truth
-from mks_sim.sim.scenes import scene_from_doc
+from mks_sim.sim.scenes import CONTACT_OPTIONS, scene_from_doc
 from mks_sim.tasks.bin import bin_world, instance_bodies
 
 INNER_HALF = (0.17, 0.13)  # worlds/bin.toml: the walls' inner faces
@@ -26,6 +26,17 @@ def test_fixture_and_gap_fields_are_checked():
         scene_from_doc({"object": [{"name": "cube", "gap_m": "x"}]}, "t.toml")
     with pytest.raises(SpecError, match=r"count: expected an integer in 1..12"):
         bin_world(0, count=13)
+    for bad in (-1, 1001, 2.5, True, "10"):
+        with pytest.raises(SpecError, match=r"field 'noslip_iterations': expected an integer"):
+            scene_from_doc({**base, "scene": {"noslip_iterations": bad}}, "t.toml")
+
+
+def test_noslip_iterations_reach_the_model():
+    base = {"object": [{"name": "cube"}]}
+    default = scene_from_doc(base, "t.toml")
+    assert default.root.option.noslip_iterations == CONTACT_OPTIONS["noslip_iterations"]
+    spec = scene_from_doc({**base, "scene": {"noslip_iterations": 37}}, "t.toml")
+    assert spec.root.option.noslip_iterations == 37
 
 
 def test_fixture_is_a_static_box_on_the_support():
@@ -77,3 +88,24 @@ def test_bin_settles_deterministically_inside_the_tray():
     c = bin_world(4, count=6)
     assert not np.array_equal(a.data.qpos, c.data.qpos)
     assert _inside_bin(c) == []
+
+
+def _rotation_deg(A: np.ndarray, B: np.ndarray) -> float:
+    c = (np.trace(A[:3, :3].T @ B[:3, :3]) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 7])
+def test_a_dropped_pile_is_at_rest(seed):
+    """Tuning bins 0 and 7 kept moving after the fixed settle (a part 28 mm / 63 deg and
+    78 mm / 92 deg over the next 4 s, ground truth); bin_world now settles until at rest."""
+    world = bin_world(seed, count=6)
+    assert world.rest_steps > 0
+    poses = truth.all_object_poses(world)
+    world.step(1000)  # 2 s more, nothing touching the pile
+    world.forward()
+    for name, T in poses.items():
+        now = truth.object_to_world(world, name)
+        assert np.linalg.norm(now[:3, 3] - T[:3, 3]) < 0.003, name
+        assert _rotation_deg(T, now) < 3.0, name

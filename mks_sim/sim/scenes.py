@@ -259,7 +259,8 @@ def _add_sensor_mounts(root: mjcf.RootElement, centre: np.ndarray) -> None:
 
 # --------------------------------------------------------------------------- scene files
 
-_SCENE_KEYS = {"name", "description", "region", "support"}
+_SCENE_KEYS = {"name", "description", "region", "support", "noslip_iterations"}
+MAX_NOSLIP_ITERATIONS = 1000
 _OBJECT_KEYS = {"name", "count", "at", "yaw_deg", "pose", "x", "y", "yaw", "on", "gap_m"}
 _FIXTURE_KEYS = {"size", "at", "z", "rgb"}
 _CLUTTER_KEYS = {"shape", "size", "at", "rgb", "dots"}
@@ -404,6 +405,17 @@ def scene_from_doc(
             castshadow=False,
             diffuse=_vec(light.get("diffuse", [0.3, 0.3, 0.3]), 3, where, "diffuse"),
         )
+    noslip = head.get("noslip_iterations", CONTACT_OPTIONS["noslip_iterations"])
+    if (
+        isinstance(noslip, bool)
+        or not isinstance(noslip, int)
+        or not 0 <= noslip <= MAX_NOSLIP_ITERATIONS
+    ):
+        raise SpecError(
+            f"{path}: [scene]: field 'noslip_iterations': expected an integer in "
+            f"0..{MAX_NOSLIP_ITERATIONS}, got {noslip!r}"
+        )
+    root.option.noslip_iterations = noslip
     support = head.get("support", "table")
     if support not in ("table", "tray"):
         raise SpecError(
