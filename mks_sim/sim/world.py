@@ -174,13 +174,15 @@ class World:
         "drop"`` also gets a uniform random orientation and is released just above the
         support, then settles (``DROP_SETTLE_STEPS`` more) onto whichever stable face it
         falls on. Stacked objects (scene 2's sphere) sit on their support with a small random
-        offset. The arm goes home, then the world settles ``settle_steps`` steps and all
-        velocities are zeroed.
+        offset. The arm goes home, then the world settles ``settle_steps`` steps; dropped
+        objects are then stepped on until at rest (:meth:`settle_until_rest`, steps in
+        ``rest_steps``), and all velocities are zeroed.
 
         Raises:
             MksError: no non-overlapping placement found.
         """
         scene = self.scene
+        self.rest_steps = 0
         self._set_home()
         specs = {s.name: s for s in scene.objects}
         placed = self._sample_layout(rng)
