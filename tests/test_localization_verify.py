@@ -193,3 +193,28 @@ def test_polyhedral_gate_rejects_a_pose_covering_part_of_an_object() -> None:
     assert not _whole(box).ok and _whole(true).ok
     assert _whole(true) == true
     assert not _whole(Consistency(1167, 0, 400, 0.0, False, 0)).ok
+
+
+def test_points_another_object_explains_are_not_unexplained() -> None:
+    """A 3 cm sphere resting on the cube (scene 2): its shell within the cube's bounding
+    sphere is left unexplained by the true cube pose, unless the sphere was set aside
+    (``elsewhere``): then none is. Inside and explained counts do not change. Expected
+    counts by brute force (:func:`_brute`)."""
+    rng = np.random.default_rng(11)
+    pts, nrm = sample_surface(box_mesh(0.05), 1500, rng=rng)
+    T = make_transform(np.eye(3), [0.0, 0.0, 0.775])
+    P = pts @ T[:3, :3].T + T[:3, 3]
+    cube = P[nrm[:, 2] > 0.5]
+    u = rng.normal(size=(3000, 3))
+    shell = 0.03 * u / np.linalg.norm(u, axis=1, keepdims=True) + [0.0, 0.0, 0.8 + 0.03]
+    shell = shell[shell[:, 2] > 0.81]  # the upper part, as sensors above see it
+    cloud = np.concatenate([cube, shell])
+    table = Plane(np.array([0.0, 0.0, 1.0]), 0.75)
+    d = 0.003
+    exp_e, exp_i, _, _, exp_u = _brute(T, pts, nrm, cloud, table, d)
+    plain = consistency(T, pts, nrm, cloud, table, d)
+    assert plain.unexplained == exp_u > 50  # the sphere's lower shell, near the cube
+    mask = np.r_[np.zeros(len(cube), bool), np.ones(len(shell), bool)]
+    aside = consistency(T, pts, nrm, cloud, table, d, elsewhere=mask)
+    assert aside.unexplained == 0
+    assert (aside.explained, aside.inside) == (plain.explained, plain.inside) == (exp_e, exp_i)

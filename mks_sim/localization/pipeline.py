@@ -922,6 +922,10 @@ def localize_polyhedral(
     keep = _set_aside_spheres(rep, snap, d, extra)
     objects = rep.objects[keep]
     extra["object_points"] = len(objects)
+    # the spheres' points are explained, by the sphere: not left unexplained by a pose of this
+    # model (scene 2's sphere on the cube made every cube pose look partial and restart ICP)
+    sphere_pts = np.zeros(len(points), dtype=bool)
+    sphere_pts[rep.object_indices[~keep]] = True
     if len(objects) < 30:
         timing["hypotheses"] = time.perf_counter() - t
         return [], extra
@@ -966,7 +970,9 @@ def localize_polyhedral(
     top = _top(candidates, 5)
     candidates = [candidates[i] for i in top]
     checks = [
-        _whole(consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree))
+        _whole(
+            consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts)
+        )
         for h in candidates
     ]
     order, good = rank(candidates, checks)
@@ -989,7 +995,11 @@ def localize_polyhedral(
         )
         t2 = time.perf_counter()
         checks2 = [
-            _whole(consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree))
+            _whole(
+                consistency(
+                    h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts
+                )
+            )
             for h in support
         ]
         candidates += support
@@ -1014,7 +1024,9 @@ def localize_polyhedral(
         if not polished:
             continue
         h = polished[0]
-        c = _whole(consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree))
+        c = _whole(
+            consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts)
+        )
         if c.ok and checks[i].ok and c.support >= POLISH_KEEP * checks[i].support:
             candidates[i], checks[i] = h, c
         else:
@@ -1029,7 +1041,11 @@ def localize_polyhedral(
         # it, which compete.
         hops = _hop(candidates[order[0]], model, objects, d, rng)
         for h in hops:
-            c = _whole(consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree))
+            c = _whole(
+                consistency(
+                    h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts
+                )
+            )
             candidates.append(h)
             checks.append(c)
         extra["hops"] = len(hops)

@@ -234,6 +234,7 @@ def consistency(
     table: Plane | None,
     d: float,
     cloud_tree: cKDTree | None = None,
+    elsewhere: NDArray[np.bool_] | None = None,
 ) -> Consistency:
     """Does the posed model (``T`` model -> world) agree with what the sensors saw?
 
@@ -241,7 +242,9 @@ def consistency(
     surface facing the sensors), ``inside`` (inside the model solid by more than ``d``) and
     ``below`` (under the model in their vertical column: the overhead and oblique sensors
     could not have seen them); ``penetration``: fraction of the model surface below the
-    table plane by more than ``d``.
+    table plane by more than ``d``. ``elsewhere``: (N,) mask over ``cloud``, points another
+    object explains (a sphere set aside): never counted unexplained (a point inside the
+    model still counts as inside).
     """
     R, t = T[:3, :3], T[:3, 3]
     P = surface_pts @ R.T + t
@@ -252,9 +255,10 @@ def consistency(
     centre = P.mean(axis=0)
     radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", P - centre, P - centre))))
     if cloud_tree is not None:
-        near = cloud[cloud_tree.query_ball_point(centre, r=radius + 2 * d)]
+        near_idx = np.asarray(cloud_tree.query_ball_point(centre, r=radius + 2 * d), dtype=np.intp)
     else:
-        near = cloud[np.linalg.norm(cloud - centre, axis=1) <= radius + 2 * d]
+        near_idx = np.flatnonzero(np.linalg.norm(cloud - centre, axis=1) <= radius + 2 * d)
+    near = cloud[near_idx]
     explained_n = inside_n = below_n = unexplained_n = 0
     penetration = 0.0
     if table is not None:
@@ -335,6 +339,8 @@ def consistency(
         loose = ~explained & ~inside & ~below
         if table is not None:
             loose &= table.distance(near) > d
+        if elsewhere is not None:
+            loose &= ~elsewhere[near_idx]
         unexplained_n = int(loose.sum())
     bad = inside_n + below_n
     ok = bool(explained_n >= 30 and bad <= 0.05 * max(explained_n, 1) and penetration <= 0.02)
