@@ -280,3 +280,45 @@ def test_a_grasp_that_reached_but_missed_may_be_tried_again():
 
     ok, why, _, failed = binmod._pick(OneSide(), [_cand(0.0, 0.0)], None, 0, None, 0.75, 0.1)
     assert (ok, why, failed) == (False, "no two-sided contact", [])
+
+
+def test_a_wall_beside_a_part_is_an_obstacle_to_its_grasp():
+    """The obstacles to grasping instance 0: the wall 15 mm beside it and the neighbour
+    (instance 1), not its own points; with ``parts=False`` the neighbour is no obstacle
+    either (the fingers may push it), the wall still is. Before, every point within the
+    model's radius of the estimate was its own: the wall was not seen by the planner."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from mks_sim.models.objects import load_object
+    from mks_sim.tasks import bin as binmod
+
+    table_z = 0.75
+    samples = binmod._surface_samples(load_object("part"))
+    T0 = np.eye(4)
+    T0[:3, 3] = [0.0, 0.0, table_z]
+    T1 = T0.copy()
+    T1[0, 3] = -0.13  # a neighbour 130 mm along x
+    rng = np.random.default_rng(0)
+    own = samples[rng.choice(len(samples), 400, replace=False)] + T0[:3, 3]
+    own = own[own[:, 2] > table_z + 0.005]  # the table under it is not seen
+    neighbour = samples[rng.choice(len(samples), 300, replace=False)] + T1[:3, 3]
+    neighbour = neighbour[neighbour[:, 2] > table_z + 0.005]
+    wy, wz = np.meshgrid(np.linspace(-0.06, 0.06, 25), np.linspace(0.006, 0.04, 8))
+    # a wall along x, 15 mm beyond the part's side (y = 30 mm)
+    wall = np.column_stack([wy.ravel(), np.full(wy.size, 0.045), table_z + wz.ravel()])
+    P = np.concatenate([own, neighbour, wall])
+    n0, n1 = len(own), len(neighbour)
+    insts = [
+        SimpleNamespace(matrix=T0, points=np.arange(n0)),
+        SimpleNamespace(matrix=T1, points=np.arange(n0, n0 + n1)),
+    ]
+    sensed = SimpleNamespace(scene_points=P, points=P, instances=SimpleNamespace(instances=insts))
+    key = {tuple(p) for p in np.round(P, 9)}
+    assert len(key) == len(P)  # every point distinct: sets compare them
+    as_set = lambda a: {tuple(p) for p in np.round(a, 9)}  # noqa: E731
+    obs = binmod.grasp_obstacles(sensed, 0, samples, table_z)
+    assert as_set(obs) == as_set(np.concatenate([neighbour, wall]))
+    obs = binmod.grasp_obstacles(sensed, 0, samples, table_z, parts=False)
+    assert as_set(obs) == as_set(wall)

@@ -199,7 +199,8 @@ def evaluate_instances(
 
 
 def _surface_samples(obj: Any) -> np.ndarray:
-    """(M, 3) area-uniform samples of the object's mesh (fixed seed: evaluation)."""
+    """(M, 3) area-uniform samples of the object's mesh (fixed seed; ~2 mm apart on the
+    industrial part)."""
     from mks_sim.geometry.meshes import sample_surface
 
     pts, _ = sample_surface(obj.mesh, 4000, rng=np.random.default_rng(0))
@@ -277,8 +278,10 @@ def run_localize_all(
         **fault_fields(robot.faults, sensed.provenance),
         "fault_reasons": dict(robot.faults),
         "time_s": round(robot.perception_s, 4),
-        "timing_s": {**{k: round(v, 4) for k, v in sensed.timing.items()},
-                     "total": round(robot.perception_s, 4)},
+        "timing_s": {
+            **{k: round(v, 4) for k, v in sensed.timing.items()},
+            "total": round(robot.perception_s, 4),
+        },
         "failed_devices": list(fail),
     }
 
@@ -482,7 +485,7 @@ class BinPicker:
         self.home_pos, self.home_yaw = self.ctl.pinch_pos(), self.ctl.pinch_yaw()
         self.table_z = names.TABLE_TOP_Z
         self.roi = bin_roi(world)
-        self.radius = float(np.max(np.linalg.norm(self.obj.mesh.vertices, axis=1)))
+        self.samples = _surface_samples(self.obj)  # the model's surface, for its own points
         self.sensed: Any = None
         self.last_tilt_deg = 0.0  # the last pick's approach from straight down (degrees)
         self.perception_s = 0.0
@@ -615,7 +618,9 @@ class BinPicker:
         from scipy.spatial import cKDTree
 
         tree = cKDTree(self.sensed.points)
-        near = [len(tree.query_ball_point(c, self.view.pad_radius_m)) for c in cands[0].contacts_world]
+        near = [
+            len(tree.query_ball_point(c, self.view.pad_radius_m)) for c in cands[0].contacts_world
+        ]
         if min(near) < self.view.min_pad_points:
             return f"grasp side occluded ({min(near)} points near a pad)"
         return ""
@@ -694,14 +699,9 @@ class BinPicker:
         T = self.sensed.instances.instances[i].matrix
         obs = None
         if obstacles != "none":
-            P = self.sensed.scene_points
-            # the instance's own points are no obstacle: those near its estimate that no
-            # other instance claimed
-            own = np.linalg.norm(P - T[:3, 3], axis=1) < self.radius + 0.005
-            own &= ~_claimed_mask(self.sensed, i)
-            if obstacles in ("fixed", "tight", "touch"):
-                own |= _claimed_mask(self.sensed, -1)
-            obs = P[~own & (P[:, 2] > self.table_z + 0.004)]
+            obs = grasp_obstacles(
+                self.sensed, i, self.samples, self.table_z, parts=obstacles == "all"
+            )
         clearance = {"tight": TIGHT_CLEARANCE_M, "touch": TOUCH_CLEARANCE_M}.get(
             obstacles, FINGER_CLEARANCE_M
         )
@@ -974,6 +974,41 @@ def covered_points(sensed: Any, i: int, obj: Any) -> int:
     near = cKDTree(S[:, :2]).query_ball_point(P[:, :2], COVER_XY_M)
     top = np.array([S[n, 2].max() if n else np.inf for n in near])
     return int(np.sum(P[:, 2] > top + COVER_ABOVE_M))
+
+
+#: A sensed point within this distance of an instance's estimated surface is the instance's
+#: own, no obstacle to its grasp. Before, every point within the model's radius (+ 5 mm) of
+#: the estimate's origin was: the bin's wall beside a part lying 38-49 mm from it was no
+#: obstacle, and the fingers came down on it (tuning bins 7 and 10, the last part: every
+#: descent blocked by the wall, the bin stopped).
+OWN_DISTANCE_M = 0.006
+
+
+def _near_surface(
+    samples: np.ndarray, T: np.ndarray, points: np.ndarray, dist: float
+) -> np.ndarray:
+    """(M,) ``points`` within ``dist`` of the surface ``samples`` (model frame) posed at ``T``."""
+    from scipy.spatial import cKDTree
+
+    posed = samples @ T[:3, :3].T + T[:3, 3]
+    d = cKDTree(posed).query(points, distance_upper_bound=dist)[0]
+    return np.isfinite(d)
+
+
+def grasp_obstacles(
+    sensed: Any, i: int, samples: np.ndarray, table_z: float, *, parts: bool = True
+) -> np.ndarray:
+    """(K, 3) the sensed points that are obstacles to a grasp of instance ``i``: every scene
+    point above the table but the instance's own (within :data:`OWN_DISTANCE_M` of its
+    estimated surface, ``samples`` posed at its estimate, and claimed by no other instance);
+    ``parts=False``: the points any instance claimed are no obstacle either (the fingers may
+    push a neighbouring part, not a wall)."""
+    P = sensed.scene_points
+    T = sensed.instances.instances[i].matrix
+    own = _near_surface(samples, T, P, OWN_DISTANCE_M) & ~_claimed_mask(sensed, i)
+    if not parts:
+        own |= _claimed_mask(sensed, -1)
+    return np.asarray(P[~own & (P[:, 2] > table_z + 0.004)])
 
 
 def _claimed_mask(sensed: Any, i: int) -> np.ndarray:
