@@ -181,3 +181,67 @@ def test_hop_skips_starts_that_are_the_best_under_a_symmetry(monkeypatch) -> Non
         rng,
     )
     assert len(seen[-1]) > len(starts)  # the bracket's turns about its centre are all kept
+
+
+@pytest.mark.parametrize("angle", [0.3, 1.2, -0.7])
+def test_footprint_rectangle_against_brute_force(angle: float) -> None:
+    """The minimum-area rectangle of points in a 60 x 20 mm rectangle turned by ``angle``:
+    its area, side direction and lengths match a brute-force search over directions (0.05
+    deg steps), its centre the rectangle's, within the sampling's reach of the edges."""
+    from mks_sim.localization.hypotheses import footprint_rectangle
+
+    rng = np.random.default_rng(9)
+    local = rng.uniform([-0.03, -0.01], [0.03, 0.01], size=(3000, 2))
+    c, s = np.cos(angle), np.sin(angle)
+    xy = local @ np.array([[c, -s], [s, c]]).T + [0.1, -0.2]
+    centre, side, lengths = footprint_rectangle(xy)
+    dirs = np.radians(np.arange(0.0, 90.0, 0.05))
+    areas = []
+    for a in dirs:
+        u, v = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
+        areas.append(np.ptp(xy @ u) * np.ptp(xy @ v))
+    best = dirs[int(np.argmin(areas))]
+    assert lengths.prod() == pytest.approx(min(areas), rel=2e-3)
+    # the side direction, modulo a quarter turn, is the brute force's
+    diff = (side - best + np.pi / 4) % (np.pi / 2) - np.pi / 4
+    assert abs(np.degrees(diff)) < 0.2
+    u = np.array([np.cos(side), np.sin(side)])
+    assert np.ptp(xy @ u) == pytest.approx(lengths[0], rel=1e-3)  # first length along `side`
+    assert np.linalg.norm(centre - [0.1, -0.2]) < 5e-4
+    assert sorted(lengths) == pytest.approx([0.02, 0.06], abs=5e-4)
+
+
+@pytest.mark.parametrize(("cut", "yaw"), [(-0.005, 0.5), (-0.01, 0.9)])
+def test_support_faces_find_a_cube_whose_top_is_partly_hidden(cut: float, yaw: float) -> None:
+    """A cube on the table seen from above with over half of its top hidden (the sphere on it
+    in scene 2) and one side face: the seen footprint's mean is 22 mm off the cube's centre.
+    The support-face hypotheses recover the pose within 3 mm (measured 1.4 and 0.9): the
+    footprint rectangles aligned at a corner. Without those placements the best was 51 mm off
+    in both cases. Truth: the pose the points were sampled at."""
+    from mks_sim.localization.hypotheses import support_face_hypotheses
+    from mks_sim.localization.pipeline import Segment
+    from mks_sim.lowlevel.regions import Plane
+
+    cube = PolyhedralModel.from_mesh(box_mesh((0.05, 0.05, 0.05)), "cube")
+    rng = np.random.default_rng(6)
+    table = Plane(np.array([0.0, 0.0, 1.0]), 0.75)
+    T = make_transform(
+        rotation_about(np.array([0.0, 0.0, 1.0]), yaw), np.array([0.05, 0.04, 0.775])
+    )
+    P = cube.surface_points() @ T[:3, :3].T + T[:3, 3]
+    N = cube.surface_normals() @ T[:3, :3].T
+    local = (P - T[:3, 3]) @ T[:3, :3]
+    top = (N[:, 2] > 0.9) & (local[:, 0] < cut)  # the top beyond x = cut hidden
+    side = N @ T[:3, 0] < -0.9  # the -x face, seen obliquely
+    seen = P[top | side] + rng.normal(0.0, 0.0003, (int(np.sum(top | side)), 3))
+    seen = seen[seen[:, 2] > 0.753]
+    assert np.linalg.norm(seen[:, :2].mean(axis=0) - T[:2, 3]) > 0.02
+    segment = Segment(np.arange(len(seen)), seen, (), None, True)
+    hyps = support_face_hypotheses(cube, [segment], table, 0.002, 0.002, rng, {})
+    assert hyps
+    # modulo the cube's symmetry: the posed corners compared as sets
+    best = np.asarray(hyps[0].matrix)
+    A = cube.vertexes @ best[:3, :3].T + best[:3, 3]
+    B = cube.vertexes @ T[:3, :3].T + T[:3, 3]
+    error = float(np.max(np.min(np.linalg.norm(A[:, None] - B[None], axis=2), axis=1)))
+    assert error < 0.003, error

@@ -58,6 +58,68 @@ def principal_angle(xy: FloatArray) -> float:
     return float(np.arctan2(major[1], major[0]))
 
 
+def footprint_rectangle(xy: FloatArray) -> tuple[FloatArray, float, FloatArray]:
+    """The minimum-area rectangle around (N >= 3, 2) points (OpenCV's rotating calipers on
+    their hull): ``(centre (2,), direction of its first side in radians, (2,) the lengths of
+    its first and second sides)``.
+
+    A square's principal axes are any pair of directions (equal eigenvalues); its
+    minimum-area rectangle is the square itself, so this gives the yaw and the centre of a
+    footprint that PCA and the mean do not: a cube seen by the stereo pair as its top face
+    and part of one side (tuning seed 5: support-face starts from the points' mean and
+    principal axis converged 20 mm and 9-13 deg off; the rectangle's centre is the cube's).
+    """
+    import cv2
+
+    origin = xy.mean(axis=0)
+    (cx, cy), (w, h), deg = cv2.minAreaRect((xy - origin).astype(np.float32))
+    return origin + np.array([cx, cy]), float(np.radians(deg)), np.array([w, h], dtype=float)
+
+
+def _on_table(
+    R: FloatArray, tr: FloatArray, moved: FloatArray, table: Plane, up: FloatArray
+) -> PoseHypothesis:
+    """The pose (R, tr) lowered or raised along ``up`` until the model (``moved`` = its
+    points rotated by R) rests on the table plane."""
+    tr = tr + up * (table.offset - float(np.min(moved @ up)))
+    T = make_transform(R, tr)
+    return PoseHypothesis(T, T[:3, 3].copy(), votes=0)
+
+
+def _rectangle_placements(
+    rotated: FloatArray,
+    R0: FloatArray,
+    seg_rect: tuple[FloatArray, float, FloatArray],
+    up: FloatArray,
+    min_spare: float,
+) -> list[tuple[FloatArray, FloatArray]]:
+    """(R, xy translation) placements of a model on a support face (``rotated``: its points
+    rotated by ``R0``, the face down) whose footprint rectangle lines up with the segment's
+    (:func:`footprint_rectangle`): the four quarter-turn yaws that align their sides, each
+    with the rectangles' centres together and, when the model's footprint is larger than the
+    seen one by ``min_spare`` or more, with each corner together (the seen footprint of a
+    partly hidden object shares a corner with its whole one: the cube under the sphere)."""
+    seg_centre, side, seg_wh = seg_rect
+    _, model_side, _ = footprint_rectangle(rotated[:, :2])
+    u = np.array([np.cos(side), np.sin(side)])
+    v = np.array([-u[1], u[0]])
+    c_seg = np.array([seg_centre @ u, seg_centre @ v])  # (u, v) frame
+    out = []
+    for k in range(4):
+        Rz = rotation_about(up, side - model_side + k * np.pi / 2)
+        xy = (rotated @ Rz.T)[:, :2]
+        lo = np.array([np.min(xy @ u), np.min(xy @ v)])
+        hi = np.array([np.max(xy @ u), np.max(xy @ v)])
+        spare = np.maximum(0.5 * (hi - lo) - 0.5 * seg_wh, 0.0)
+        corners = [(0, 0)]
+        if np.max(spare) >= min_spare:
+            corners += [(1, 1), (1, -1), (-1, 1), (-1, -1)]
+        for su, sv in corners:
+            shift = c_seg + np.array([su, sv]) * spare - 0.5 * (lo + hi)
+            out.append((Rz @ R0, shift[0] * u + shift[1] * v))
+    return out
+
+
 def support_face_hypotheses(
     model: Any,
     segments: list[Any],
@@ -69,7 +131,6 @@ def support_face_hypotheses(
 ) -> list[PoseHypothesis]:
     """Poses with a support face of the model on the table plane: all starts of a segment
     pre-scored in one batch, the best refined by ICP."""
-    from mks_sim.geometry.transforms import make_transform
     from mks_sim.models.refine import verify_hypotheses
 
     t = time.perf_counter()
@@ -104,21 +165,24 @@ def support_face_hypotheses(
             continue  # larger than the model: not one object of it
         starts: list[PoseHypothesis] = []
         seg_angle = principal_angle(seg_pts[:, :2])
+        rect = footprint_rectangle(seg_pts[:, :2])
         for n in normals:
             R0 = rotation_between(n, -up)
             rotated = pts @ R0.T
             model_angle = principal_angle(rotated[:, :2])
-            yaws = [seg_angle - model_angle + k * np.pi / 2 for k in range(4)]
-            yaws += [k * np.pi / 4 for k in range(8)]  # the footprint axis may mislead
-            for yaw in yaws:
+            # yaws from the footprints' principal axes and 8 fixed ones (the axes may
+            # mislead), the points' means aligned; then the footprint rectangles' placements
+            for yaw in [seg_angle - model_angle + k * np.pi / 2 for k in range(4)] + [
+                k * np.pi / 4 for k in range(8)
+            ]:
                 R = rotation_about(up, yaw) @ R0
                 moved = pts @ R.T
                 tr = np.zeros(3)
                 tr[:2] = seg_pts[:, :2].mean(axis=0) - moved[:, :2].mean(axis=0)
-                # the support face on the table plane
-                tr += up * (table.offset - float(np.min(moved @ up)))
-                T = make_transform(R, tr)
-                starts.append(PoseHypothesis(T, T[:3, 3].copy(), votes=0))
+                starts.append(_on_table(R, tr, moved, table, up))
+            for R, tr_xy in _rectangle_placements(rotated, R0, rect, up, 2 * d):
+                moved = pts @ R.T
+                starts.append(_on_table(R, np.r_[tr_xy, 0.0], moved, table, up))
         if not starts:
             continue
         t_hyp = time.perf_counter()

@@ -982,9 +982,14 @@ def localize_polyhedral(
     if table is not None and _best_covers_little(candidates, checks, order, model, objects, d):
         # support segments as the sensors separate objects: SPG components over 12 mm edges
         # (none that large: an object seen in pieces, e.g. an L-bracket standing on its leg
-        # ends, keeps the merged segments)
+        # ends, keeps the merged segments), and the object segments over short edges that
+        # are none of those: a cube touching a clutter box is one 12 mm component, too large
+        # for one cube, and a segment of its own over 4 spacings (stereo pair, tuning seeds
+        # 22 and 1019: not found before)
         wide = object_segments(rep, surface.size, keep=keep, gap=rep.gap, merge=False)
-        unexplained = _unexplained_segments(wide or segments, candidates, checks, model, d)
+        known = {s.indices.tobytes() for s in wide}
+        pool = wide + [s for s in segments if s.indices.tobytes() not in known]
+        unexplained = _unexplained_segments(pool, candidates, checks, model, d)
     if table is not None and unexplained:
         # The object rests on the table: hypotheses from every support face of the model put
         # on the sensed table plane (yaw from the footprint's principal axes and 8 fixed
