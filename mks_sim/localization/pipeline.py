@@ -937,7 +937,8 @@ def localize_polyhedral(
     extra["segments"] = [len(s.indices) for s in segments]
     extra["candidates"] = len(candidates)
 
-    # the model's own logical sensor (vertexes / control points): support of the estimate
+    # the model's own logical sensor (vertexes / control points): its matcher's input and
+    # support of the estimate
     t = time.perf_counter()
     detected: FloatArray | None = None
     try:
@@ -945,8 +946,36 @@ def localize_polyhedral(
     except MksError as exc:
         log.info("logical sensor %s unavailable: %s", sensor, exc)
     extra["detected_features"] = 0 if detected is None else len(detected)
+    timing["hypotheses"] += time.perf_counter() - t
     surface_pts = np.asarray(model.surface_points(), dtype=np.float64)
     surface_nrm = np.asarray(model.surface_normals(), dtype=np.float64)
+
+    def check(h: PoseHypothesis) -> Consistency:
+        return _whole(
+            consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts)
+        )
+
+    # 6. scene consistency of the best candidates over the whole cloud; when the best is
+    # settled (consistent, whole, showing what one view shows) the later stages could only
+    # confirm it: it gets the final polish and is the answer (healthy cube and part, tuning
+    # seeds 0-29: 29 and 26 of 30 settle here, every one within 5 mm / 5 deg)
+    t = time.perf_counter()
+    candidates = [candidates[i] for i in _top(candidates, 5)]
+    checks = [check(h) for h in candidates]
+    order, good = rank(candidates, checks)
+    timing["verification"] += time.perf_counter() - t
+    extra["inlier_distance_m"] = d
+    if _settled(candidates, checks, order, model, objects, d):
+        t = time.perf_counter()
+        _polish(order[0], candidates, checks, model, objects, d, rng, check)
+        order, good = rank(candidates, checks)
+        timing["verification"] += time.perf_counter() - t
+        extra["settled_early"] = True
+        extra["checks"] = [checks[i].as_dict() for i in order[:5]]
+        _feature_support(good, detected, model, d, extra)
+        return good, extra
+
+    t = time.perf_counter()
     # 5'. the model's own matcher on its logical sensor: the rotation-invariant Hough of the
     # detected vertexes / control points (section 2.2.1), refined by ICP on the points
     if detected is not None and len(detected) >= 3 and callable(getattr(entry, "detect", None)):
@@ -960,24 +989,16 @@ def localize_polyhedral(
         t = time.perf_counter()
         refined = _refine_near(_best_coarse(coarse, model, objects, d, 2), model, objects, d, rng)
         extra["rotinv_refined"] = len(refined)
+        # the five best of all (the checked five and the refined ones), checked once each
+        checks += [check(h) for h in refined]
         candidates += refined
+        keep5 = _top(candidates, 5)
+        candidates = [candidates[i] for i in keep5]
+        checks = [checks[i] for i in keep5]
+        order, good = rank(candidates, checks)
         timing["verification"] += time.perf_counter() - t
     else:
         timing["hypotheses"] += time.perf_counter() - t
-
-    # 6. scene consistency of the best candidates over the whole cloud
-    t = time.perf_counter()
-    top = _top(candidates, 5)
-    candidates = [candidates[i] for i in top]
-    checks = [
-        _whole(
-            consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts)
-        )
-        for h in candidates
-    ]
-    order, good = rank(candidates, checks)
-    timing["verification"] += time.perf_counter() - t
-    extra["inlier_distance_m"] = d
     unexplained: list[Any] = []
     if table is not None and _best_covers_little(candidates, checks, order, model, objects, d):
         # support segments as the sensors separate objects: SPG components over 12 mm edges
@@ -999,14 +1020,7 @@ def localize_polyhedral(
             model, unexplained, table, rep.table_threshold, d, rng, timing
         )
         t2 = time.perf_counter()
-        checks2 = [
-            _whole(
-                consistency(
-                    h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts
-                )
-            )
-            for h in support
-        ]
+        checks2 = [check(h) for h in support]
         candidates += support
         checks += checks2
         order, good = rank(candidates, checks)
@@ -1025,18 +1039,7 @@ def localize_polyhedral(
     # net support, the start 4.4 deg off, the polish 1.5 deg).
     n_polish = 1 if order and checks[order[0]].ok else 2
     for i in order[:n_polish]:
-        polished = _refine_near([candidates[i]], model, objects, d, rng)
-        if not polished:
-            continue
-        h = polished[0]
-        c = _whole(
-            consistency(h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts)
-        )
-        if c.ok and checks[i].ok and c.support >= POLISH_KEEP * checks[i].support:
-            candidates[i], checks[i] = h, c
-        else:
-            candidates.append(h)
-            checks.append(c)
+        _polish(i, candidates, checks, model, objects, d, rng, check)
     order, good = rank(candidates, checks)
     best = checks[order[0]] if order else None
     if best is not None and (not best.ok or best.unexplained > HOP_UNEXPLAINED * best.explained):
@@ -1046,25 +1049,76 @@ def localize_polyhedral(
         # it, which compete.
         hops = _hop(candidates[order[0]], model, objects, d, rng)
         for h in hops:
-            c = _whole(
-                consistency(
-                    h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts
-                )
-            )
             candidates.append(h)
-            checks.append(c)
+            checks.append(check(h))
         extra["hops"] = len(hops)
         order, good = rank(candidates, checks)
     timing["verification"] += time.perf_counter() - t
     extra["checks"] = [checks[i].as_dict() for i in order[:5]]
-    if good and detected is not None and len(detected):
-        T = np.asarray(good[0].matrix)
-        model_feats = getattr(model, "vertexes", None)
-        if model_feats is not None:
-            mv = np.asarray(model_feats) @ T[:3, :3].T + T[:3, 3]
-            dist = cKDTree(detected).query(mv)[0]
-            extra["feature_support"] = int((dist < 4 * d).sum())
+    _feature_support(good, detected, model, d, extra)
     return good, extra
+
+
+def _feature_support(
+    good: list[PoseHypothesis],
+    detected: FloatArray | None,
+    model: Any,
+    d: float,
+    extra: dict[str, Any],
+) -> None:
+    """``extra["feature_support"]``: how many of the model's vertexes, posed at the best
+    estimate, have a detected feature of its logical sensor within 4 ``d``."""
+    model_feats = getattr(model, "vertexes", None)
+    if not good or detected is None or not len(detected) or model_feats is None:
+        return
+    T = np.asarray(good[0].matrix)
+    mv = np.asarray(model_feats) @ T[:3, :3].T + T[:3, 3]
+    dist = cKDTree(detected).query(mv)[0]
+    extra["feature_support"] = int((dist < 4 * d).sum())
+
+
+def _settled(
+    candidates: list[PoseHypothesis],
+    checks: list[Consistency],
+    order: list[int],
+    model: Any,
+    objects: FloatArray,
+    d: float,
+) -> bool:
+    """The best-ranked candidate is consistent, leaves at most :data:`HOP_UNEXPLAINED` of its
+    explained count unexplained nearby and shows at least what one view does
+    (:data:`VISIBLE_FRACTION` of the model's surface): no later stage would replace it."""
+    if not order or not checks[order[0]].ok:
+        return False
+    best = checks[order[0]]
+    if best.unexplained > HOP_UNEXPLAINED * best.explained:
+        return False
+    return not _best_covers_little(candidates, checks, order, model, objects, d)
+
+
+def _polish(
+    i: int,
+    candidates: list[PoseHypothesis],
+    checks: list[Consistency],
+    model: Any,
+    objects: FloatArray,
+    d: float,
+    rng: np.random.Generator,
+    check: Any,
+) -> None:
+    """A full ICP of candidate ``i`` on the object points near it, checked again: it replaces
+    the candidate when still consistent with at least :data:`POLISH_KEEP` of its net
+    support, and is appended as a candidate of its own otherwise (lists changed in place)."""
+    polished = _refine_near([candidates[i]], model, objects, d, rng)
+    if not polished:
+        return
+    h = polished[0]
+    c = check(h)
+    if c.ok and checks[i].ok and c.support >= POLISH_KEEP * checks[i].support:
+        candidates[i], checks[i] = h, c
+    else:
+        candidates.append(h)
+        checks.append(c)
 
 
 def _whole(check: Consistency) -> Consistency:
