@@ -123,3 +123,47 @@ def test_each_piece_is_computed_once(monkeypatch: pytest.MonkeyPatch) -> None:
         rep.vertexes_of(comp)
     _ = rep.segmentation.curved, rep.normals.curvature
     assert calls == {"normals": 1, "segment": 1}
+
+
+def test_segments_are_verified_most_promising_first_and_stop_when_settled() -> None:
+    """A 5 cm cube and a 9 x 6 x 3 cm box on a table, the box's segment the larger: the
+    cube's segment is verified first (its vertex hypotheses explain it, the box's only in
+    part) and, when the caller says the candidates so far settle it, the box's is never
+    verified; the best candidate is the cube's pose the points were sampled at. Without the
+    callback both segments are verified."""
+    from mks_sim.localization.model import PolyhedralModel
+    from mks_sim.localization.pipeline import object_segments, polyhedral_candidates
+
+    rng = np.random.default_rng(2)
+    cube_at = np.array([0.05, -0.03, TABLE_Z + 0.025])
+    T = make_transform(np.eye(3), cube_at)
+    cube, _ = sample_surface(box_mesh(0.05), 4000, rng=rng)
+    cube = cube[cube[:, 2] > -0.0249] + cube_at
+    box, _ = sample_surface(box_mesh((0.09, 0.06, 0.03)), 6000, rng=rng)
+    box = box[box[:, 2] > -0.0149] + [-0.09, 0.05, TABLE_Z + 0.015]
+    table = np.c_[rng.uniform(-0.2, 0.2, (15000, 2)), np.full(15000, TABLE_Z)]
+    pts = np.vstack([table, cube, box]) + rng.normal(0.0, 2e-4, (15000 + len(cube) + len(box), 3))
+    rep = Representation(pts, RepresentationConfig(table_z_m=TABLE_Z, gap_m=0.012))
+    model = PolyhedralModel.from_mesh(box_mesh(0.05), "cube")
+    segments = object_segments(rep, model.surface.size)
+    assert len(segments) == 2
+    box_seg = int(np.argmax([s.points[:, 0].mean() < 0 for s in segments]))
+    assert len(segments[box_seg].points) > len(segments[1 - box_seg].points)
+    asked: list[int] = []
+
+    def settled(found: list) -> bool:  # type: ignore[type-arg]
+        asked.append(len(found))
+        return True
+
+    hyps, seg_of = polyhedral_candidates(
+        model, rep, segments, rng=np.random.default_rng(0), settled=settled
+    )
+    assert len(asked) == 1 and hyps
+    assert set(seg_of) == {1 - box_seg}
+    best = np.asarray(hyps[0].matrix)
+    # modulo the cube's symmetry: the posed corners compared as sets
+    A = model.vertexes @ best[:3, :3].T + best[:3, 3]
+    B = model.vertexes @ T[:3, :3].T + T[:3, 3]
+    assert np.max(np.min(np.linalg.norm(A[:, None] - B[None], axis=2), axis=1)) < 0.002
+    _, seg_of_all = polyhedral_candidates(model, rep, segments, rng=np.random.default_rng(0))
+    assert box_seg in seg_of_all
