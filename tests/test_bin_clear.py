@@ -322,3 +322,71 @@ def test_a_wall_beside_a_part_is_an_obstacle_to_its_grasp():
     assert as_set(obs) == as_set(np.concatenate([neighbour, wall]))
     obs = binmod.grasp_obstacles(sensed, 0, samples, table_z, parts=False)
     assert as_set(obs) == as_set(wall)
+
+
+class _TurningHand(_FakeHand):
+    """A fake hand whose top-down moves turn it to the yaw asked for."""
+
+    def move_to(self, pos, yaw, spacing_m=0.01, rotation=None):
+        from mks_sim.tasks.grasp import down_rotation
+
+        self.R = down_rotation(yaw) if rotation is None else rotation
+        return super().move_to(pos, yaw, spacing_m, rotation)
+
+
+def _tipped_over(corners):
+    """The box ``corners`` (8, 3) after falling over each of its two long bottom edges (a
+    90 deg turn about the edge, away from the part): a list of (8, 3) arrays."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    long_axis = 0 if hi[0] - lo[0] >= hi[1] - lo[1] else 1
+    short = 1 - long_axis
+    out = []
+    for side in (lo[short], hi[short]):
+        pivot = np.array([0.0, 0.0, lo[2]])
+        pivot[short] = side
+        axis = np.zeros(3)
+        axis[long_axis] = 1.0
+        for sign in (1.0, -1.0):
+            turned = Rotation.from_rotvec(sign * np.pi / 2 * axis).apply(corners - pivot) + pivot
+            if turned[:, 2].min() >= lo[2] - 1e-9:  # it falls onto the floor, not through it
+                out.append(turned)
+    return out
+
+
+@pytest.mark.parametrize("before", [0, 4])
+def test_a_part_that_will_fall_over_is_let_go_with_room_to_fall(before):
+    """A 100 x 60 x 30 mm box held on its side (60 mm tall, 30 mm thick) is let go where,
+    falling over either long bottom edge, it still lies inside the box's walls (brute force
+    over its corners), with ``before`` flat parts placed before it. Placed as a flat part
+    (the long side along x, 15 mm inside the walls from the -x, -y corner), falling toward
+    -y put it 45 mm over the wall (tuning bins 0 and 3)."""
+    import itertools
+
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+    from mks_sim.tasks.grasp import down_rotation
+
+    table_z = 0.5
+    flat = np.array([0.05, 0.03])
+    placed: list[np.ndarray] = []
+    for _ in range(before):
+        m = binmod.place_middle(flat, placed)
+        placed.append(np.concatenate([m - flat, m + flat]))
+    # on its side: 100 mm along the pinch frame's y, 30 mm along its x (the closing axis),
+    # 60 mm down from the fingers
+    corners = np.array(list(itertools.product((-0.015, 0.015), (-0.05, 0.05), (0.0, 0.06))))
+    hand = _TurningHand([0.05, -0.02, table_z + 0.16], down_rotation(0.3))
+    assert binmod._carry_to_box(hand, corners, table_z, None, 0.1, placed=placed) == ""
+    W = corners @ hand.R.T + hand.pos
+    W[:, 2] -= W[:, 2].min() - table_z  # let go: it drops onto the floor
+    inside = np.asarray(binmod.OUTPUT_BOX_HALF_XY) - 0.004  # the walls are 8 mm thick
+    c = np.asarray(binmod.OUTPUT_BOX_XY)
+    fallen = _tipped_over(W)
+    assert len(fallen) == 2
+    for F in fallen:
+        assert np.all(np.abs(F[:, :2] - c) <= inside), F
+    assert len(placed) == before + 1

@@ -1185,10 +1185,11 @@ def _turned(d: np.ndarray, angle: float) -> np.ndarray:
     return np.asarray(d) @ np.array([[c, s], [-s, c]])
 
 
-def _turn_to_fit(W: np.ndarray, pos: np.ndarray) -> float:
+def _turn_to_fit(W: np.ndarray, pos: np.ndarray, *, long_along_x: bool = True) -> float:
     """The turn (radians, |turn| <= 90 deg, in :data:`PLACE_TURN_STEP_DEG` steps) about the
     vertical through the pinch point ``pos`` that makes the footprint of the carried part
-    ``W`` (N, 3) the smallest bounding rectangle, its long side along x (the box's); the
+    ``W`` (N, 3) the smallest bounding rectangle, its long side along x (the box's; with
+    ``long_along_x=False`` its short side, along which a part standing on edge falls); the
     smallest such turn."""
     steps = np.radians(np.arange(-90.0, 90.0 + 1e-9, PLACE_TURN_STEP_DEG))
     steps = steps[np.argsort(np.abs(steps), kind="stable")]
@@ -1197,8 +1198,26 @@ def _turn_to_fit(W: np.ndarray, pos: np.ndarray) -> float:
     for a in steps:
         q = _turned(d, a)
         ext = q.max(axis=0) - q.min(axis=0)
-        areas.append((round(ext[0] * ext[1] * 1e6), ext[0] < ext[1]))  # mm^2, then along x
+        along = ext[0] < ext[1] if long_along_x else ext[0] > ext[1]
+        areas.append((round(ext[0] * ext[1] * 1e6), along))  # mm^2, then the side along x
     return float(steps[min(range(len(steps)), key=areas.__getitem__)])
+
+
+def fall_room(W: np.ndarray, half_xy: np.ndarray) -> np.ndarray:
+    """(2,) half sides of the rectangle a carried part may end in once let go: its footprint's
+    ``half_xy`` (x, y), the short side grown by the part's height when it stands taller than
+    that side is wide (``W`` (N, 3), the part as carried, metres).
+
+    A part held on edge or on end falls over when let go; it tips over a long bottom edge and
+    then lies up to its height beyond it (tuning bins 0 and 3: parts held on their side, let
+    go 15 mm inside the box's wall, fell over it).
+    """
+    half = np.asarray(half_xy, dtype=float).copy()
+    height = float(W[:, 2].max() - W[:, 2].min())
+    k = int(np.argmin(half))
+    if height > 2.0 * half[k]:
+        half[k] += height
+    return half
 
 
 def _carry_to_box(
@@ -1226,7 +1245,9 @@ def _carry_to_box(
     The part's middle goes over its place in the box with its lowest point (or the
     fingertips') ``CARRY_MARGIN_M`` above the walls on the way, then down to
     ``RELEASE_GAP_M`` above the box's rim. A part carried top-down (``rotation`` None) is
-    turned on the way so that its footprint's bounding rectangle is smallest.
+    turned on the way so that its footprint's bounding rectangle is smallest, long side
+    along the box's x; one that will fall over when let go (:func:`fall_room`) short side
+    along x, and its place leaves it room to fall.
     """
     pos, yaw = ctl.pinch_pos(), ctl.pinch_yaw()
     R = ctl.pinch_rotation()
@@ -1234,15 +1255,21 @@ def _carry_to_box(
     below = max(pos[2] - float(W[:, 2].min()), TIPS_BELOW_PINCH_M)
     travel_z = max(pos[2], table_z + max(BIN_WALL_M, BOX_WALL_M) + CARRY_MARGIN_M + below)
     release_z = table_z + BOX_WALL_M + RELEASE_GAP_M + below
-    turn = _turn_to_fit(W, pos) if (rotation is None and placed is not None) else 0.0
+    turn = 0.0
+    if rotation is None and placed is not None:
+        turn = _turn_to_fit(W, pos)
+        half = 0.5 * np.ptp(_turned(W[:, :2] - pos[:2], turn), axis=0)
+        if np.any(fall_room(W, half) > half):  # it will fall over: along the box's length
+            turn = _turn_to_fit(W, pos, long_along_x=False)
     Wxy = _turned(W[:, :2] - pos[:2], turn) + pos[:2]
     lo, hi = Wxy.min(axis=0), Wxy.max(axis=0)
     middle_off = 0.5 * (lo + hi) - pos[:2]
     if placed is None:
         middle = np.asarray(OUTPUT_BOX_XY, dtype=float)
     else:
-        middle = place_middle(0.5 * (hi - lo), placed)
-        placed.append(np.concatenate([middle - 0.5 * (hi - lo), middle + 0.5 * (hi - lo)]))
+        room = fall_room(W, 0.5 * (hi - lo))
+        middle = place_middle(room, placed)
+        placed.append(np.concatenate([middle - room, middle + room]))
     over = np.array([*(middle - middle_off), travel_z])
     if travel_z > pos[2] + 0.005:
         ctl.move_to(np.array([pos[0], pos[1], travel_z]), yaw, spacing_m=0.01, rotation=rotation)
