@@ -390,3 +390,46 @@ def test_a_part_that_will_fall_over_is_let_go_with_room_to_fall(before):
     for F in fallen:
         assert np.all(np.abs(F[:, :2] - c) <= inside), F
     assert len(placed) == before + 1
+
+
+def test_a_pregrasp_missed_once_is_moved_to_again():
+    """The arm stops short of the pre-grasp on the first move and gets there on the second:
+    the pick goes on down and closes (before, the candidate was given up as out of reach);
+    an arm that never gets there gives the candidate up after two moves."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+
+    class Late:
+        def __init__(self, misses):
+            self.misses, self.moves, self.pos = misses, [], np.zeros(3)
+
+        def preshape(self, q, steps):
+            pass
+
+        def move_to(self, pos, yaw, spacing_m=0.01, rotation=None):
+            self.moves.append(np.asarray(pos, dtype=float))
+            if len(self.moves) <= self.misses:
+                self.pos = np.asarray(pos, dtype=float) + [0.0, 0.02, 0.0]  # 20 mm short
+                return False
+            self.pos = np.asarray(pos, dtype=float)
+            return True
+
+        def pinch_pos(self):
+            return self.pos.copy()
+
+        def pinch_rotation(self):
+            return np.eye(3)
+
+        def close(self, threshold, yaw, rotation=None):
+            return SimpleNamespace(sides=lambda t: (True, False), finger_qpos=np.full(3, 0.9))
+
+    hand = Late(1)
+    ok, why, _, _ = binmod._pick(hand, [_cand(0.0, 0.0)], None, 0, None, 0.75, 0.1)
+    assert why == "no two-sided contact"  # it went down and closed
+    assert [m[2] for m in hand.moves] == [0.9, 0.9, 0.8]
+    hand = Late(99)
+    ok, why, _, failed = binmod._pick(hand, [_cand(0.0, 0.0)], None, 0, None, 0.75, 0.1)
+    assert why.startswith("unreachable (1 pre-grasp") and len(hand.moves) == 2

@@ -1089,8 +1089,12 @@ def _pick(
         ctl.preshape(p.preshape_q, 10)
         pre = ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.03, rotation=rot)
         if not (pre or _reached(ctl, p.pregrasp_world, p.hand_rotation)):
-            no_ik += 1
-            continue
+            # once more from where the arm stopped: in free space above the bin it had
+            # stopped 5-30 mm short (a waypoint's IK or a slow settle; tuning bin 6)
+            pre = ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.01, rotation=rot)
+            if not (pre or _reached(ctl, p.pregrasp_world, p.hand_rotation)):
+                no_ik += 1
+                continue
         grasp = np.asarray(p.grasp_point_world)
         down = ctl.move_to(grasp, p.yaw_rad, spacing_m=0.01, rotation=rot)
         if down or _reached(ctl, grasp, p.hand_rotation):
