@@ -34,6 +34,7 @@ __all__ = [
     "group_equivalent",
     "icp_point_to_plane",
     "merge_verified",
+    "near_symmetries",
     "principal_half_turns",
     "batch_inlier_fractions",
     "score_pose",
@@ -386,6 +387,53 @@ def principal_half_turns(points: ArrayLike) -> FloatArray:
         out[k, :3, :3] = R
         out[k, :3, 3] = c - R @ c
     return out
+
+
+def near_symmetries(
+    points: ArrayLike,
+    symmetries: ArrayLike | None = None,
+    *,
+    tolerance: float = 2.0,
+) -> FloatArray:
+    """Half turns that map a model's surface almost onto itself: its near-twin poses.
+
+    Candidates are the half turns about the axes of the samples' bounding box through its
+    centre and about their principal axes through their centroid; one is kept when the
+    median distance of the turned samples to the nearest sample is within ``tolerance``
+    sampling spacings (most of the surface lands on itself; the features that differ may
+    be hidden in a view) and it is no exact symmetry of the model (within 5 deg of one of
+    ``symmetries``, or of another kept turn). The industrial part turned about its height
+    axis: median 1.6 mm at 1.3 mm spacing, 10 % of the surface over 12 mm off.
+
+    Args:
+        points: (M, 3) model surface samples (model frame).
+        symmetries: (S, 3, 3) the model's exact symmetries (None: none).
+        tolerance: median distance allowed, in sampling spacings.
+
+    Returns:
+        (K, 4, 4) transforms ``p -> c + R (p - c)`` (K may be 0).
+    """
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 10:
+        raise DataError(f"near_symmetries: expected (M >= 10, 3) points, got {p.shape}")
+    tree = cKDTree(p)
+    spacing = float(np.median(tree.query(p[:: max(1, len(p) // 500)], k=2)[0][:, 1]))
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    box = np.repeat(np.eye(4)[None], 3, axis=0)
+    for k in range(3):
+        a = np.eye(3)[k]
+        R = 2.0 * np.outer(a, a) - np.eye(3)
+        box[k, :3, :3] = R
+        box[k, :3, 3] = 0.5 * (lo + hi) - R @ (0.5 * (lo + hi))
+    known = [np.eye(3)] + ([] if symmetries is None else list(np.asarray(symmetries)))
+    out: list[FloatArray] = []
+    for T in np.concatenate([box, principal_half_turns(p)]):
+        if min(rotation_angle_deg(T[:3, :3], S) for S in known) < 5.0:
+            continue
+        if np.median(tree.query(p @ T[:3, :3].T + T[:3, 3])[0]) <= tolerance * spacing:
+            out.append(T)
+            known.append(T[:3, :3])
+    return np.asarray(out, dtype=np.float64).reshape(-1, 4, 4)
 
 
 def detect_symmetries(
