@@ -293,7 +293,7 @@ def polyhedral_candidates(
 
 #: Segment points the pre-score of a segment's vertex hypotheses uses (their order of
 #: verification).
-PROMISE_POINTS = 300
+PROMISE_POINTS = 100
 
 
 def _promise(
