@@ -433,3 +433,31 @@ def test_a_pregrasp_missed_once_is_moved_to_again():
     hand = Late(99)
     ok, why, _, failed = binmod._pick(hand, [_cand(0.0, 0.0)], None, 0, None, 0.75, 0.1)
     assert why.startswith("unreachable (1 pre-grasp") and len(hand.moves) == 2
+
+
+def test_the_last_round_grazes_walls_for_an_instance_failed_on_too():
+    """Rounds in order (all, fixed, tight, then touch): an instance with candidates only at
+    the grazing clearance is chosen there, also when a pick failed on it before (the bin
+    stopped with it left, tuning bin 1); instances not failed on go first; nothing anywhere
+    gives None and the tight round's counts."""
+    from mks_sim.tasks import bin as binmod
+
+    calls = []
+
+    def grasps(i, *, obstacles):
+        calls.append((i, obstacles))
+        if obstacles == "none":
+            return ["pair"] if i == 0 else []  # instance 1 has no antipodal pair at all
+        return ["cand"] if (i, obstacles) in allowed else []
+
+    allowed = {(0, "touch")}
+    chosen, blocked, no_pair = binmod._choose_grasp(grasps, [1, 0], [True, False])
+    assert chosen == (0, ["cand"]) and (blocked, no_pair) == (1, 1)
+    assert [c for c in calls if c[1] == "touch"] == [(1, "touch"), (0, "touch")]
+    allowed = {(0, "touch"), (1, "touch")}
+    chosen, _, _ = binmod._choose_grasp(grasps, [0, 1], [True, False])
+    assert chosen == (1, ["cand"])  # the one not failed on first
+    allowed = {(0, "fixed"), (1, "touch")}
+    assert binmod._choose_grasp(grasps, [1, 0], [False, False])[0] == (0, ["cand"])
+    allowed = set()
+    assert binmod._choose_grasp(grasps, [1, 0], [True, False]) == (None, 1, 1)
