@@ -948,9 +948,11 @@ def localize_polyhedral(
 ) -> tuple[list[PoseHypothesis], dict[str, Any]]:
     """The workstation's polyhedral path over a snapshot's representation (steps 4-6 of
     :func:`mks_sim.localization.workstation.localize_object`): spheres set aside, segments,
-    vertex / plane-pair candidates, the model's rotation-invariant Hough on its logical
-    sensor, consistency over the whole cloud, support faces for what stays unexplained, and
-    a final polish; returns (consistent hypotheses best first, diagnostics)."""
+    vertex / plane-pair candidates (most promising segment first, stopping once settled),
+    consistency over the whole cloud; a settled best (:func:`_settled`) is polished and
+    returned; otherwise the model's rotation-invariant Hough on its logical sensor, support
+    faces for what stays unexplained, a final polish and restarts; returns (consistent
+    hypotheses best first, diagnostics)."""
     extra: dict[str, Any] = {}
     points = rep.points
     table = rep.table
@@ -1159,7 +1161,7 @@ def _polish(
     objects: FloatArray,
     d: float,
     rng: np.random.Generator,
-    check: Any,
+    check: Callable[[PoseHypothesis], Consistency],
 ) -> None:
     """A full ICP of candidate ``i`` on the object points near it, checked again: it replaces
     the candidate when still consistent with at least :data:`POLISH_KEEP` of its net
