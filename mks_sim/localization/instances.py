@@ -228,18 +228,22 @@ def localize_all(
             use_table: Plane | None = use_table,
             pass_index: int = passes - 1,
         ) -> bool:
-            best: Instance | None = None
-            for h in hyps[:per_segment]:
+            def better(h: PoseHypothesis, best: Instance | None) -> Instance | None:
+                """``h`` checked as an instance when it passes and explains more points than
+                ``best`` (a part and its near-twin flipped pose both fit; the right one
+                explains more), else ``best``."""
                 inst = _check(
                     h, cloud, tree, free, claimed, found, surface, surf_pts, surf_nrm,
                     use_table, d, centre, radius, size, same_fraction, min_new_fraction,
                     expected, pass_index, rng, verify_hypotheses,
                 )  # fmt: skip
-                # the consistent candidate explaining the most points (a part and its
-                # near-twin flipped pose both fit; the right one explains more)
-                if inst is not None and inst.score >= min_score:
-                    if best is None or inst.explained > best.explained:
-                        best = inst
+                if inst is None or inst.score < min_score:
+                    return best
+                return inst if best is None or inst.explained > best.explained else best
+
+            best: Instance | None = None
+            for h in hyps[:per_segment]:
+                best = better(h, best)
             # the near-twin poses of the best (of the first candidate when none passed):
             # the part turned about its height axis fits the same points but for features
             # the pile may hide (tuning bin 9: a part 40 % visible was found turned 180 deg,
@@ -252,15 +256,7 @@ def localize_all(
                 return False
             for S in twins:
                 T = base @ S
-                inst = _check(
-                    PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3]), cloud, tree, free,
-                    claimed, found, surface, surf_pts, surf_nrm, use_table, d, centre, radius,
-                    size, same_fraction, min_new_fraction, expected, pass_index, rng,
-                    verify_hypotheses,
-                )  # fmt: skip
-                if inst is not None and inst.score >= min_score:
-                    if best is None or inst.explained > best.explained:
-                        best = inst
+                best = better(PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3]), best)
             if best is None:
                 return False
             found.append(best)

@@ -978,6 +978,7 @@ def localize_polyhedral(
     timing["verification"] = 0.0
     surface_pts = np.asarray(model.surface_points(), dtype=np.float64)
     surface_nrm = np.asarray(model.surface_normals(), dtype=np.float64)
+    objects_tree = cKDTree(objects)  # the coverage tests' (once, not per test)
     checked: dict[int, tuple[PoseHypothesis, Consistency]] = {}
 
     def check(h: PoseHypothesis) -> Consistency:
@@ -994,7 +995,7 @@ def localize_polyhedral(
     def settled(found: list[PoseHypothesis]) -> bool:
         top = [found[i] for i in _top(found, 5)]
         checks = [check(h) for h in top]
-        return _settled(top, checks, rank(top, checks)[0], model, objects, d)
+        return _settled(top, checks, rank(top, checks)[0], model, objects_tree, d)
 
     candidates, _ = polyhedral_candidates(
         model, rep, segments, rng=rng, timing=timing, settled=settled
@@ -1022,7 +1023,7 @@ def localize_polyhedral(
     order, good = rank(candidates, checks)
     timing["verification"] += time.perf_counter() - t
     extra["inlier_distance_m"] = d
-    if _settled(candidates, checks, order, model, objects, d):
+    if _settled(candidates, checks, order, model, objects_tree, d):
         t = time.perf_counter()
         _polish(order[0], candidates, checks, model, objects, d, rng, check)
         order, good = rank(candidates, checks)
@@ -1057,7 +1058,7 @@ def localize_polyhedral(
     else:
         timing["hypotheses"] += time.perf_counter() - t
     unexplained: list[Any] = []
-    if table is not None and _best_covers_little(candidates, checks, order, model, objects, d):
+    if table is not None and _best_covers_little(candidates, checks, order, model, objects_tree, d):
         # support segments as the sensors separate objects: SPG components over 12 mm edges
         # (none that large: an object seen in pieces, e.g. an L-bracket standing on its leg
         # ends, keeps the merged segments), and the object segments over short edges that
@@ -1139,18 +1140,16 @@ def _settled(
     checks: list[Consistency],
     order: list[int],
     model: Any,
-    objects: FloatArray,
+    objects_tree: cKDTree,
     d: float,
 ) -> bool:
-    """The best-ranked candidate is consistent, leaves at most :data:`HOP_UNEXPLAINED` of its
-    explained count unexplained nearby and shows at least what one view does
-    (:data:`VISIBLE_FRACTION` of the model's surface): no later stage would replace it."""
-    if not order or not checks[order[0]].ok:
+    """The best-ranked candidate is consistent and shows at least what one view does (not
+    :func:`_best_covers_little`) and leaves at most :data:`HOP_UNEXPLAINED` of its
+    explained count unexplained nearby: no later stage would replace it."""
+    if _best_covers_little(candidates, checks, order, model, objects_tree, d):
         return False
     best = checks[order[0]]
-    if best.unexplained > HOP_UNEXPLAINED * best.explained:
-        return False
-    return not _best_covers_little(candidates, checks, order, model, objects, d)
+    return best.unexplained <= HOP_UNEXPLAINED * best.explained
 
 
 def _polish(
@@ -1230,19 +1229,19 @@ def _best_covers_little(
     checks: list[Consistency],
     order: list[int],
     model: Any,
-    objects: FloatArray,
+    objects_tree: cKDTree,
     d: float,
 ) -> bool:
     """No consistent candidate, or the best shows less of the model's surface than one view
-    does (:data:`VISIBLE_FRACTION` of its samples with an object point
-    nearby; a fraction of the model's fixed sampling, independent of the scan density): the
-    object may be another, partly hidden segment."""
+    does (:data:`VISIBLE_FRACTION` of its samples with an object point within ``d``, from
+    ``objects_tree``, the object points' k-d tree; a fraction of the model's fixed sampling,
+    independent of the scan density): the object may be another, partly hidden segment."""
     from mks_sim.localization.verify import surface_coverage
 
-    if not order or not checks[order[0]].ok or len(objects) == 0:
+    if not order or not checks[order[0]].ok or objects_tree.n == 0:
         return True
     T = np.asarray(candidates[order[0]].matrix, dtype=np.float64)
-    cover = surface_coverage(model.surface_points(), T[None], cKDTree(objects), d)
+    cover = surface_coverage(model.surface_points(), T[None], objects_tree, d)
     return bool(cover[0] < VISIBLE_FRACTION)
 
 
