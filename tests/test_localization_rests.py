@@ -245,3 +245,33 @@ def test_support_faces_find_a_cube_whose_top_is_partly_hidden(cut: float, yaw: f
     B = cube.vertexes @ T[:3, :3].T + T[:3, 3]
     error = float(np.max(np.min(np.linalg.norm(A[:, None] - B[None], axis=2), axis=1)))
     assert error < 0.003, error
+
+
+def test_rested_pose_faces_the_table_exactly() -> None:
+    """:func:`rested_pose`: a cube pose 6 deg tilted with a corner on the table is turned to
+    stand on the face nearest facing the table (its normal exactly down, its lowest points on
+    the plane, its yaw kept); 12 deg tilted, or 5 mm above the table, it is left alone."""
+    from mks_sim.localization.hypotheses import rested_pose, support_normals
+    from mks_sim.lowlevel.regions import Plane
+
+    model = PolyhedralModel.from_mesh(box_mesh((0.05, 0.05, 0.05)), "cube")
+    table = Plane(np.array([0.0, 0.0, 1.0]), 0.75)
+    normals = support_normals(model)
+    pts = model.surface_points()
+
+    def posed(tilt_deg: float, lift: float) -> np.ndarray:
+        R = rotation_about(np.array([1.0, 1.0, 0.0]) / np.sqrt(2), np.radians(tilt_deg))
+        R = R @ rotation_about(np.array([0.0, 0.0, 1.0]), 0.5)
+        low = float((pts @ R.T)[:, 2].min())
+        return make_transform(R, np.array([0.02, -0.01, 0.75 - low + lift]))
+
+    got = rested_pose(posed(6.0, 0.0), model, table, normals, 10.0, 0.004)
+    assert got is not None
+    T, face = got
+    assert np.allclose(T[:3, :3] @ face, [0.0, 0.0, -1.0], atol=1e-9)
+    assert abs(float((pts @ T[:3, :3].T + T[:3, 3])[:, 2].min()) - 0.75) < 1e-9
+    # the yaw kept: the cube's x axis turned 0.5 rad about the vertical, to within the tilt
+    yaw = np.arctan2(T[1, 0], T[0, 0])
+    assert abs(yaw - 0.5) < np.radians(1.0), np.degrees(yaw)
+    assert rested_pose(posed(12.0, 0.0), model, table, normals, 10.0, 0.004) is None
+    assert rested_pose(posed(6.0, 0.005), model, table, normals, 10.0, 0.004) is None

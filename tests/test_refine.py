@@ -126,3 +126,34 @@ def test_bad_inputs() -> None:
         icp_point_to_plane(surface, np.zeros((10, 3)), np.eye(3), max_distance=1.0)
     with pytest.raises(DataError, match=r"\(S, 3, 3\)"):
         group_equivalent([np.eye(4)], np.eye(3), translation_tol=1.0)
+
+
+def test_icp_about_an_axis_turns_only_about_it() -> None:
+    """``axis``: a start with the true tilt and a wrong yaw and position converges to the
+    true pose; a start tilted 4 deg stays tilted exactly as much (the relative rotation of
+    start and result keeps the axis fixed), while the free ICP takes the tilt out."""
+    from mks_sim.localization.hypotheses import rotation_about
+
+    rng = np.random.default_rng(7)
+    mesh = box_mesh((0.05, 0.05, 0.05))
+    surface = ModelSurface.from_arrays(*sample_surface(mesh, 3000, rng=rng))
+    T_true = make_transform(rotation_about(np.array([0.0, 0.0, 1.0]), 0.3), [0.1, 0.0, 0.8])
+    pts, nrm = sample_surface(mesh, 3000, rng=rng)
+    scene = apply(T_true, pts[(nrm[:, 2] > 0.5) | (nrm[:, 0] > 0.5) | (nrm[:, 1] > 0.5)])
+    scene += rng.normal(0, 0.0002, scene.shape)
+    down = np.array([0.0, 0.0, -1.0])  # the face the cube rests on (model frame)
+    yawed = make_transform(
+        T_true[:3, :3] @ rotation_about(down, np.radians(6.0)),
+        T_true[:3, 3] + [0.004, -0.003, 0.002],
+    )
+    res = icp_point_to_plane(surface, scene, yawed, max_distance=0.01, axis=down)
+    pos, rot = pose_error(res.matrix, T_true)
+    assert pos < 0.0005 and rot < 0.3, (pos, rot)
+    tilt = rotation_about(np.array([1.0, 0.0, 0.0]), np.radians(4.0))
+    tilted = make_transform(T_true[:3, :3] @ tilt, T_true[:3, 3])
+    kept = icp_point_to_plane(surface, scene, tilted, max_distance=0.01, axis=down)
+    relative = tilted[:3, :3].T @ kept.matrix[:3, :3]  # model-frame motion of the fit
+    assert np.allclose(relative @ down, down, atol=1e-9)
+    assert pose_error(kept.matrix, T_true)[1] > 3.9
+    free = icp_point_to_plane(surface, scene, tilted, max_distance=0.01)
+    assert pose_error(free.matrix, T_true)[1] < 0.3

@@ -134,19 +134,10 @@ def support_face_hypotheses(
     from mks_sim.models.refine import verify_hypotheses
 
     t = time.perf_counter()
-    faces = getattr(model, "faces", ())
     surface = model.surface
     pts = np.asarray(surface.points, dtype=np.float64)
     up = table.normal / np.linalg.norm(table.normal)
-    # the model's exact corners make the hull's planes exact (samples miss edges)
-    corners = np.asarray(getattr(model, "vertexes", np.empty((0, 3))), dtype=np.float64)
-    rests = stable_hull_normals(np.vstack([corners.reshape(-1, 3), pts]), centre=pts.mean(axis=0))
-    normals = [
-        np.asarray(face.normal, dtype=np.float64)
-        for face in faces
-        if np.max(pts @ face.normal) <= face.offset + 0.02 * surface.size
-    ]  # support faces: no model points beyond them
-    normals += [n for n in rests if all(n @ m < 0.999 for m in normals)]
+    normals = support_normals(model)
     out: list[PoseHypothesis] = []
     for seg in segments:
         # off the table's noise band (stereo noise near the table joins the segment)
@@ -205,6 +196,58 @@ def support_face_hypotheses(
         out.extend(v.hypothesis for v in verified)
     out.sort(key=lambda h: -h.score)
     return out
+
+
+def support_normals(model: Any) -> list[FloatArray]:
+    """Outward normals (model frame) of the faces a model can rest on: its faces with no
+    model point beyond them, and the hull's planes whose polygon holds the centroid's
+    projection (:func:`stable_hull_normals`)."""
+    surface = model.surface
+    pts = np.asarray(surface.points, dtype=np.float64)
+    # the model's exact corners make the hull's planes exact (samples miss edges)
+    corners = np.asarray(getattr(model, "vertexes", np.empty((0, 3))), dtype=np.float64)
+    rests = stable_hull_normals(np.vstack([corners.reshape(-1, 3), pts]), centre=pts.mean(axis=0))
+    normals = [
+        np.asarray(face.normal, dtype=np.float64)
+        for face in getattr(model, "faces", ())
+        if np.max(pts @ face.normal) <= face.offset + 0.02 * surface.size
+    ]  # support faces: no model points beyond them
+    normals += [n for n in rests if all(n @ m < 0.999 for m in normals)]
+    return normals
+
+
+def rested_pose(
+    matrix: FloatArray,
+    model: Any,
+    table: Plane,
+    normals: Sequence[FloatArray],
+    max_tilt_deg: float,
+    max_gap: float,
+) -> tuple[FloatArray, FloatArray] | None:
+    """A pose's nearest resting pose on the table plane: ``(pose, face normal in the model
+    frame)``, or None when no support face is within ``max_tilt_deg`` of facing the table or
+    the model's lowest point is more than ``max_gap`` from it.
+
+    The support face whose outward normal points nearest the table is turned to face it
+    exactly, about the model's centre, and the model is set down on the plane; what the
+    pose says of yaw and of the position along the table is kept."""
+    T = np.asarray(matrix, dtype=np.float64)
+    pts = np.asarray(model.surface.points, dtype=np.float64)
+    up = table.normal / np.linalg.norm(table.normal)
+    world = pts @ T[:3, :3].T + T[:3, 3]
+    if abs(float(np.min(world @ up)) - table.offset) > max_gap or not len(normals):
+        return None
+    down = np.array([-(T[:3, :3] @ n) @ up for n in normals])  # cosines to facing the table
+    k = int(np.argmax(down))
+    if down[k] < np.cos(np.radians(max_tilt_deg)):
+        return None
+    Q = rotation_between(T[:3, :3] @ normals[k], -up)
+    centre = T[:3, :3] @ pts.mean(axis=0) + T[:3, 3]
+    R = Q @ T[:3, :3]
+    moved = pts @ R.T
+    tr = Q @ (T[:3, 3] - centre) + centre
+    tr = tr + up * (table.offset - float(np.min((moved + tr) @ up)))
+    return make_transform(R, tr), np.asarray(normals[k], dtype=np.float64)
 
 
 def stable_hull_normals(

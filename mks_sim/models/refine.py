@@ -140,6 +140,7 @@ def icp_point_to_plane(
     trim: float = 0.9,
     max_iterations: int = 30,
     tolerance: float = 1e-5,
+    axis: ArrayLike | None = None,
 ) -> IcpResult:
     """Point-to-plane ICP of a model surface to scene points (scene -> model correspondences).
 
@@ -155,11 +156,21 @@ def icp_point_to_plane(
         trim: fraction of gated pairs kept (the closest).
         max_iterations: iteration cap.
         tolerance: stop when the update (rotation radians + translation / model size) is below.
+        axis: (3,) a direction in the model frame: the pose turns only about it (4 degrees
+            of freedom, the translation free: an object resting on a face with this outward
+            normal turns on its support plane and never tilts).
 
     Returns:
         :class:`IcpResult`.
     """
     scene = np.asarray(scene_points, dtype=np.float64)
+    basis: FloatArray | None = None
+    if axis is not None:
+        f = np.asarray(axis, dtype=np.float64).reshape(3)
+        f = f / np.linalg.norm(f)
+        basis = np.zeros((6, 4))  # columns: turn about f, translations
+        basis[:3, 0] = f
+        basis[3:, 1:] = np.eye(3)
     if scene.ndim != 2 or scene.shape[1] != 3 or len(scene) < 6:
         raise DataError(f"icp_point_to_plane: expected (N >= 6, 3) scene points, got {scene.shape}")
     T = np.asarray(initial, dtype=np.float64)
@@ -188,9 +199,15 @@ def icp_point_to_plane(
         a[:, 1] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
         a[:, 2] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
         a[:, 3:] = n
-        H = a.T @ a
-        H[_DIAG6] += 1e-9
-        x = np.linalg.solve(H, -(a.T @ r))
+        if basis is None:
+            H = a.T @ a
+            H[_DIAG6] += 1e-9
+            x = np.linalg.solve(H, -(a.T @ r))
+        else:
+            b = a @ basis
+            H = b.T @ b
+            H[_DIAG6[0][:4], _DIAG6[1][:4]] += 1e-9
+            x = basis @ np.linalg.solve(H, -(b.T @ r))
         rmse = float(np.sqrt(np.mean(r**2)))
         dT = np.eye(4)
         dT[:3, :3] = _rodrigues(x[:3])
