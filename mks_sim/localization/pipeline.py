@@ -1209,15 +1209,23 @@ def _rest(
 ) -> bool:
     """Candidate ``i`` set to rest on the table (:func:`rested_pose`) and refined by ICP that
     turns it only about the normal of the face it rests on (its position free: the table's
-    fitted plane is not the object's underside to a tenth of a millimetre); it replaces the candidate when consistent with
-    at least :data:`REST_KEEP` of its net support (lists changed in place). Returns whether
-    it did.
+    fitted plane is not the object's underside to a tenth of a millimetre); it replaces the
+    candidate when consistent with at least :data:`REST_KEEP` of its net support (lists
+    changed in place). Returns whether it did.
 
     An object touching the table with a support face a few degrees from facing it is not at
     rest; noisy points tilt a free ICP that far (stereo cube, tuning seeds 1044 and 1063:
     6.8 and 6.4 deg of tilt, nothing else wrong), and the constrained fit keeps what they
-    say of the position and the yaw."""
-    if table is None or not checks[i].ok:
+    say of the position and the yaw. A candidate that failed its check only by sinking into
+    the table is set to rest too, and replaces itself when that passes (tuning seed 1099: 4 mm
+    from the truth, 18 % of its surface under the table; rested, 0.9 mm and the best)."""
+    before = checks[i]
+    sunk = (
+        not before.ok
+        and before.penetration > 0
+        and before.inside + before.below <= 0.05 * max(before.explained, 1)
+    )
+    if table is None or not (before.ok or sunk):
         return False
     normals = _support_normals(model)
     got = rested_pose(candidates[i].matrix, model, table, normals, REST_TILT_DEG, REST_GAP_D * d)
@@ -1243,7 +1251,7 @@ def _rest(
         score=score,
     )
     c = check(h)
-    if c.ok and c.support >= REST_KEEP * checks[i].support:
+    if c.ok and (sunk or c.support >= REST_KEEP * before.support):
         candidates[i], checks[i] = h, c
         return True
     return False
