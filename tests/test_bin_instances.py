@@ -146,10 +146,14 @@ def test_cli_all_bad_input():
 def test_bin_text_reports_name_failed_devices_and_alternates():
     from mks_sim.cli._bin import _fault_lines
 
-    rec = {"faults": ["range_finder", "wrist_camera"], "fault_reasons": {"wrist_camera": "x"},
-           "warnings": ["Fused_Points ran on alternate Stereo_View"]}
+    rec = {
+        "faults": ["range_finder", "wrist_camera"],
+        "fault_reasons": {"wrist_camera": "x"},
+        "warnings": ["Fused_Points ran on alternate Stereo_View"],
+    }
     assert _fault_lines(rec) == [
-        "fault: range_finder: failed", "fault: wrist_camera: x",
+        "fault: range_finder: failed",
+        "fault: wrist_camera: x",
         "warning: Fused_Points ran on alternate Stereo_View",
     ]
 
@@ -229,3 +233,98 @@ def test_a_near_twin_pose_from_the_vote_is_turned_back(monkeypatch):
     assert result.found == 1
     ((mm, deg),) = _errors([i.matrix for i in result.instances], POSES[:1])
     assert mm < 2.0 and deg < 2.0, (mm, deg)
+
+
+def test_a_part_upside_down_is_found_from_its_upright_vote(monkeypatch):
+    """The vote proposes only the part upright with its bottom face where the real part,
+    lying upside down, shows its bottom (tuning bin 15: such candidates explained 270 of
+    1150 points and the part was not found): turned over about a face of its bounding box,
+    it is found at the pose the points were scanned at."""
+    import mks_sim.localize as loc_mod
+    from mks_sim.models.pose import PoseHypothesis
+
+    model = instance_model("part")
+    # upside down on the table: half round about its x axis, its 30 mm height below the
+    # origin (the bottom face, z = 0 in the model frame) then facing up at 30 mm
+    truth = _pose(-0.01, 0.02, 25.0, z=TABLE_Z + 0.03) @ np.diag([1.0, -1.0, -1.0, 1.0])
+    pts = _scan((truth,))
+    upright = truth @ np.diag([1.0, -1.0, -1.0, 1.0])  # the same bottom face, body up
+    assert _errors([upright], [truth])[0][1] > 170.0
+    real = loc_mod.localize_cloud
+
+    def vote_upright(model_, points, **kwargs):  # noqa: ANN001, ANN202, ANN003
+        out = real(model_, points, **kwargs)
+        h = PoseHypothesis(upright, upright[:3, 3].copy(), votes=10)
+        return type(out)(**{**out.__dict__, "hypotheses": (h,), "segment_of": (0,)})
+
+    monkeypatch.setattr(loc_mod, "localize_cloud", vote_upright)
+    result = localize_all(model, pts, table=TABLE, rng=np.random.default_rng(0))
+    assert result.found == 1
+    ((mm, deg),) = _errors([i.matrix for i in result.instances], [truth])
+    assert mm < 2.0 and deg < 2.0, (mm, deg)
+
+
+def test_turned_over_poses_keep_a_face_in_place():
+    """Each of the 15 half turns maps the model's bounding box onto itself or onto the box
+    turned over about one of its faces' centre lines: brute force, the turned box's corners
+    stay within the box grown by its extent along one axis only."""
+    from mks_sim.geometry.meshes import sample_surface
+    from mks_sim.localization.instances import _turned_over
+
+    pts = sample_surface(industrial_part_mesh(), 3000, rng=np.random.default_rng(0))[0]
+    flips = _turned_over(pts)
+    assert flips.shape == (15, 4, 4)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    corners = np.array(
+        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+    )
+    same_box = 0
+    for S in flips:
+        assert np.allclose(S[:3, :3] @ S[:3, :3], np.eye(3)) and np.isclose(
+            np.linalg.det(S[:3, :3]), 1.0
+        )
+        moved = corners @ S[:3, :3].T + S[:3, 3]
+        m_lo, m_hi = moved.min(axis=0), moved.max(axis=0)
+        shift = np.round((m_lo - lo) / (hi - lo), 6)
+        assert np.allclose(m_hi - m_lo, hi - lo)  # a half turn about a box axis keeps the box
+        assert np.count_nonzero(shift) <= 1 and set(np.abs(shift)) <= {0.0, 1.0}, shift
+        same_box += not np.any(shift)
+    assert same_box == 3  # the turns through the box's centre
+
+
+def test_two_parts_stacked_bottom_to_bottom_are_two_instances():
+    """One part lies upside down on the table, another stands upright on it, bottom faces
+    together, 20 mm apart along their length: their centres are 26 mm apart (under 0.25 x
+    the part's 120 mm size, the
+    distance that made two poses one instance), yet they share only the bottom face. The
+    overlap of the two posed models is the shared bottom's share of the surface (brute force
+    over the samples: those within 2 d of the model's z = 0 plane, over the other part),
+    a pose and its 2 mm shifted copy overlap almost wholly; and both parts are found."""
+    from mks_sim.localization.instances import SAME_OVERLAP, _overlap
+    from mks_sim.models.refine import ModelSurface
+
+    model = instance_model("part")
+    sp = np.asarray(model.surface_points())
+    surface = ModelSurface.from_arrays(sp, np.asarray(model.surface_normals()))
+    d = 0.003
+    lower = _pose(-0.02, 0.0, 0.0, z=TABLE_Z + 0.03) @ np.diag([1.0, -1.0, -1.0, 1.0])
+    upper = _pose(0.0, 0.0, 0.0, z=TABLE_Z + 0.03)  # 20 mm along the parts' long axis
+    centre = sp.mean(axis=0)
+    gap = np.linalg.norm(
+        (upper[:3, :3] @ centre + upper[:3, 3]) - (lower[:3, :3] @ centre + lower[:3, 3])
+    )
+    assert gap < 0.25 * surface.size
+    samples = sp[:: max(1, len(sp) // 400)]
+    # the upper part's samples on its bottom face over the lower part's (which reaches to
+    # x = 30 mm in the upper part's frame)
+    bottom = float(np.mean((np.abs(samples[:, 2]) <= 2 * d) & (samples[:, 0] <= 0.03 + 2 * d)))
+    assert abs(_overlap(upper, lower, surface, d) - bottom) < 0.05, bottom
+    assert _overlap(upper, lower, surface, d) < SAME_OVERLAP
+    shifted = upper.copy()
+    shifted[:3, 3] += [0.002, 0.0, 0.0]
+    assert _overlap(shifted, upper, surface, d) > 0.95
+    pts = _scan((upper, lower), eyes=EYES)  # both mounts: one sees little of the lower part
+    result = localize_all(model, pts, table=TABLE, rng=np.random.default_rng(0))
+    assert result.found == 2
+    errors = _errors([i.matrix for i in result.instances], [upper, lower])
+    assert all(mm < 2.0 and deg < 2.0 for mm, deg in errors), errors

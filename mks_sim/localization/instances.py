@@ -11,7 +11,8 @@ explained points removed (issue 13):
    checked against the WHOLE cloud (:func:`~mks_sim.localization.verify.consistency`: no
    point seen through the posed model, none under it, no table penetration);
 3. the first consistent one that is new -- its centre farther than ``same_fraction`` x the
-   model size from every accepted instance's, and most of its explained points not claimed
+   model size from every accepted instance's or overlapping each nearer one less than
+   :data:`SAME_OVERLAP`, and most of its explained points not claimed
    already -- is accepted and its points (within 2 inlier distances of the whole posed
    surface) are claimed;
 4. passes repeat until one accepts nothing, ``max_instances`` are found or too few points
@@ -41,7 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError
-from mks_sim.localization.verify import Consistency, consistency
+from mks_sim.localization.verify import Consistency, batch_explained, consistency
 from mks_sim.lowlevel.regions import Plane
 from mks_sim.models.pose import PoseHypothesis
 
@@ -56,6 +57,21 @@ VISIBLE_FRACTION = 0.35
 #: Pile consistency (:func:`_pile_ok`): points seen through the posed model at most this
 #: fraction of the points it explains (true poses: 0; wrong ones measured 2-15 %).
 MAX_INSIDE = 0.01
+#: Two poses closer than ``same_fraction`` of the size are one instance when this fraction
+#: of one's surface lies on or in the other (:func:`_overlap`); below it they are two parts
+#: touching. Tuning bin 11: a part's true pose, its centre 29.8 mm from a neighbour's (under
+#: the 30 mm of 0.25 x the size) with 13 % overlap, was taken for the neighbour, and its
+#: near-twin, whose centre lies farther, was reported instead (180 deg off). The industrial
+#: part against itself: near-twin 0.80, shifted 10 mm 0.90, 20 mm 0.77.
+SAME_OVERLAP = 0.5
+OVERLAP_SAMPLES = 400
+#: Turned-over poses (:func:`_turned_over`) checked when no candidate of a segment passed.
+FLIPS_CHECKED = 3
+#: A turned-over pose is accepted only at this score or more: turned over, a candidate that
+#: failed its check finds a consistent but wrong pose at times (tuning bin 13: a part 8 mm
+#: off and turned 180 deg, score 0.58-0.62, explaining parts of two others); the right ones
+#: of tuning bin 15 scored 0.72-1.0.
+MIN_FLIP_SCORE = 0.7
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,7 +152,7 @@ def localize_all(
         max_instances: stop after this many.
         max_passes: voting passes at most.
         same_fraction: two poses whose model centres are closer than this x the model's size
-            are one instance.
+            are one instance when they overlap (:data:`SAME_OVERLAP`).
         min_new_fraction: a candidate must explain at least this fraction of points no
             accepted instance claimed.
         min_score: instances scoring less are not reported (fragments, wrong poses).
@@ -175,6 +191,8 @@ def localize_all(
     centre = surf_pts.mean(axis=0)
     radius = float(np.max(np.linalg.norm(surf_pts - centre, axis=1)))
     twins = near_symmetries(surf_pts, model.symmetries())
+    flips = _turned_over(surf_pts)
+    flip_samples = surf_pts[:: max(1, len(surf_pts) // 300)]
     d = inlier_distance
     if d is None:
         d = 0.003 if table is None or table.rmse <= 0 else max(0.003, 3.0 * table.rmse)
@@ -258,6 +276,19 @@ def localize_all(
                 T = base @ S
                 best = better(PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3]), best)
             if best is None:
+                # nothing passed: the first candidate turned over (a part lying upside down
+                # shows its flat bottom, which the upright pose puts its own bottom on:
+                # tuning bin 15, candidates 0.5 mm and 178 deg off a part explained 270 of
+                # its 1150 points); the turns that land the most model samples on free
+                # points (one batch query) are checked
+                turned = base @ flips
+                n_near = batch_explained(flip_samples, turned, cKDTree(cloud[free]), 2 * d)
+                for k in np.argsort(-n_near, kind="stable")[:FLIPS_CHECKED]:
+                    T = turned[k]
+                    best = better(PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3]), best)
+                if best is not None and best.score < MIN_FLIP_SCORE:
+                    best = None
+            if best is None:
                 return False
             found.append(best)
             claimed[best.points] = True
@@ -306,6 +337,45 @@ def localize_all(
     # indices into the caller's array (NaN rows were dropped)
     found = [replace(i, points=finite[i.points]) for i in found]
     return Instances(tuple(found), passes, table, d, timing)
+
+
+def _overlap(A: FloatArray, B: FloatArray, surface: Any, d: float) -> float:
+    """Fraction of the model's surface at pose ``A`` that lies on or inside the model at pose
+    ``B`` (within ``2 d`` of its surface or behind its nearest sample's normal): about 1 for
+    two estimates of one instance (a pose and its near-twin included), at most the share of
+    a touching face for two solids that only touch."""
+    pts = surface.points[:: max(1, len(surface.points) // OVERLAP_SAMPLES)]
+    rel = np.linalg.solve(B, A)  # A's model frame -> B's
+    q = pts @ rel[:3, :3].T + rel[:3, 3]
+    dist, j = surface.tree.query(q)
+    behind = np.einsum("ij,ij->i", q - surface.points[j], surface.normals[j]) < 0
+    return float(np.mean((dist <= 2 * d) | behind))
+
+
+def _turned_over(surf_pts: FloatArray) -> FloatArray:
+    """(15, 4, 4) half turns of a model (model frame) about each axis of its samples'
+    bounding box, through the box's centre and through the centres of the four faces
+    parallel to the axis: the poses of an object turned over onto another face, the face it
+    was seen by kept in place."""
+    lo, hi = surf_pts.min(axis=0), surf_pts.max(axis=0)
+    mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    out = []
+    for k in range(3):
+        R = -np.eye(3)
+        R[k, k] = 1.0
+        pivots = [mid]
+        for j in range(3):
+            if j != k:
+                for sign in (-1.0, 1.0):
+                    p = mid.copy()
+                    p[j] += sign * half[j]
+                    pivots.append(p)
+        for p in pivots:
+            S = np.eye(4)
+            S[:3, :3] = R
+            S[:3, 3] = p - R @ p
+            out.append(S)
+    return np.stack(out)
 
 
 def _split(points: FloatArray, k: int, rng: np.random.Generator) -> NDArray[np.intp]:
@@ -374,7 +444,9 @@ def _check(
             c = T[:3, :3] @ centre + T[:3, 3]
     for inst in found:
         other = inst.matrix[:3, :3] @ centre + inst.matrix[:3, 3]
-        if np.linalg.norm(c - other) < same_fraction * size:
+        if np.linalg.norm(c - other) < same_fraction * size and (
+            _overlap(T, inst.matrix, surface, d) >= SAME_OVERLAP
+        ):
             return None
     check = consistency(T, surf_pts, surf_nrm, cloud, table, d, tree)
     if not _pile_ok(check):
