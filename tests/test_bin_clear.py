@@ -322,6 +322,8 @@ def test_a_wall_beside_a_part_is_an_obstacle_to_its_grasp():
     assert as_set(obs) == as_set(np.concatenate([neighbour, wall]))
     obs = binmod.grasp_obstacles(sensed, 0, samples, table_z, parts=False)
     assert as_set(obs) == as_set(wall)
+    fixed, parts = binmod.obstacle_sets(sensed, 0, samples, table_z)
+    assert as_set(fixed) == as_set(wall) and as_set(parts) == as_set(neighbour)
 
 
 class _TurningHand(_FakeHand):
@@ -461,3 +463,137 @@ def test_the_last_round_grazes_walls_for_an_instance_failed_on_too():
     assert binmod._choose_grasp(grasps, [1, 0], [False, False])[0] == (0, ["cand"])
     allowed = set()
     assert binmod._choose_grasp(grasps, [1, 0], [True, False]) == (None, 1, 1)
+
+
+def _finger_vertices(world, band_m=0.025):
+    """Per finger (1, 2, 3), the world vertices of its links' meshes within ``band_m`` of its
+    lowest point (the simulator's hand, ground truth of the robot's geometry)."""
+    import mujoco
+    import numpy as np
+
+    m, d = world.model, world.data
+    out = []
+    for f in (1, 2, 3):
+        pts = []
+        for g in range(m.ngeom):
+            body = m.body(m.geom_bodyid[g]).name
+            if not body.endswith((f"b_finger_{f}", f"b_finger_tip_{f}")):
+                continue
+            if m.geom_type[g] != mujoco.mjtGeom.mjGEOM_MESH:
+                continue  # the touch pads' domes lie within the distal link's hull
+            mesh = m.geom_dataid[g]
+            a, n = m.mesh_vertadr[mesh], m.mesh_vertnum[mesh]
+            pts.append(m.mesh_vert[a : a + n] @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g])
+        V = np.concatenate(pts)
+        out.append(V[V[:, 2] < V[:, 2].min() + band_m])
+    return out
+
+
+@pytest.mark.parametrize("width_m", [0.02, 0.03, 0.05, 0.07, 0.09, 0.11])
+def test_the_finger_footprint_holds_the_open_fingers(width_m):
+    """Every vertex of the simulated fingers' lowest 25 mm, the hand pointing down and
+    pre-shaped to ``width_m`` (also between the measured apertures), lies in the footprint
+    :func:`fingers_blocked` checks (a point there blocks the descent at no margin), no lower
+    than FOOTPRINT_BELOW_PINCH_M below the pinch point; points just beyond the footprint,
+    outward of each finger, do not block. The synthesis' fingertip points with the
+    "touch" round's 7 mm miss part of every finger."""
+    from types import SimpleNamespace
+
+    import mujoco
+    import numpy as np
+
+    from mks_sim.sim import names
+    from mks_sim.tasks import bin as binmod
+    from mks_sim.tasks.grasp import PRESHAPE_MARGIN_M, fingertips_xy, preshape_q
+
+    world = binmod.bin_world(None, count=1)
+    m, d = world.model, world.data
+    q = preshape_q(width_m)
+    for k in range(m.njnt):
+        if m.joint(k).name.split("/")[-1] in ("finger_1", "finger_2", "finger_3"):
+            d.qpos[m.jnt_qposadr[k]] = q
+    mujoco.mj_forward(m, d)
+    R = d.site(names.PINCH_SITE).xmat.reshape(3, 3)
+    pinch = d.site(names.PINCH_SITE).xpos.copy()
+    assert R[2, 2] < -0.999  # the hand points down
+    yaw = float(np.arctan2(R[1, 0], R[0, 0]))
+    cand = SimpleNamespace(pinch_world=tuple(pinch), yaw_rad=yaw, width_m=width_m)
+    fingers = _finger_vertices(world)
+    aperture = width_m + PRESHAPE_MARGIN_M
+    centres, radius = binmod.finger_footprint(aperture)
+    tips = fingertips_xy(aperture)
+    for f, V in enumerate(fingers):
+        assert pinch[2] - V[:, 2].min() <= binmod.FOOTPRINT_BELOW_PINCH_M
+        assert all(binmod.fingers_blocked(cand, v[None], 0.0) for v in V), f
+        local = (V - pinch) @ R  # the pinch frame
+        # beyond the footprint, outward along the closing axis: clear
+        outward = np.sign(centres[f, 0])
+        beyond = centres[f] + np.array([outward * (radius + 0.0015), 0.0])
+        world_pt = pinch + R @ np.array([*beyond, 0.0])
+        assert not binmod.fingers_blocked(cand, world_pt[None], 0.001), f
+        # the synthesis' fingertip point and the touch round's clearance: part of the finger
+        # lies beyond it
+        assert np.max(np.linalg.norm(local[:, :2] - tips[f], axis=1)) > 0.007
+
+
+def test_candidates_clear_of_the_neighbours_go_first():
+    """In the rounds where neighbours are no obstacles: a top-down candidate whose finger 1
+    would come down on a neighbour's top (a point under its footprint, found by brute force
+    over the footprint's disc) goes after the clear ones; tilted ones stay last; each group
+    keeps its order."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+
+    def cand(x, rotation=None):
+        return SimpleNamespace(
+            pinch_world=(x, 0.0, 0.77), yaw_rad=0.0, width_m=0.04, rotation_world=rotation
+        )
+
+    centres, radius = binmod.finger_footprint(0.04 + 0.035)
+    # a neighbour's top under finger 1 of the candidate at x = 0 (yaw 0: the pinch frame's x
+    # is the world's x, its y the world's -y), 5 mm above the pinch point
+    top = np.array([[centres[0, 0], -centres[0, 1], 0.775]])
+    on, clear_a, clear_b = cand(0.0), cand(0.2), cand(-0.2)
+    tilted = cand(0.0, rotation=((1, 0, 0), (0, -1, 0), (0, 0, -1)))
+    ordered = binmod.clear_of_neighbours_first([on, clear_a, tilted, clear_b], top)
+    assert ordered == [clear_a, clear_b, on, tilted]
+    # brute force: the point blocks exactly when it is within the footprint + margin of a
+    # finger centre (moved out along x, beyond the disc: clear)
+    for dx in np.linspace(0.0, 0.03, 31):
+        p = top + [dx, 0.0, 0.0]
+        inside = dx < radius + binmod.NEIGHBOUR_MARGIN_M
+        assert binmod.fingers_blocked(on, p, binmod.NEIGHBOUR_MARGIN_M) == inside, dx
+    # below the fingers' reach it is no obstacle
+    low = top - [0.0, 0.0, 0.005 + binmod.FOOTPRINT_BELOW_PINCH_M + 0.001]
+    assert not binmod.fingers_blocked(on, low, 0.0)
+
+
+def test_an_instance_with_a_grasp_clear_of_the_neighbours_goes_first():
+    """Rounds with ``clear``: instance 0's "fixed" candidates all come down on a neighbour
+    (``clear`` keeps none), instance 1 has one clear at the "touch" round: instance 1 is
+    chosen (tuning bin 10: the fixed round's two descents onto a neighbour were tried
+    first). With nothing clear anywhere the rounds run as before: instance 0's "fixed"
+    candidates."""
+    from mks_sim.tasks import bin as binmod
+
+    def grasps(i, *, obstacles):
+        if obstacles == "none":
+            return ["pair"]
+        return [f"{i}-{obstacles}"] if (i, obstacles) in allowed else []
+
+    allowed = {(0, "fixed"), (1, "touch")}
+    clear_ones = {"1-touch"}
+
+    def clear(i, cands):
+        return [c for c in cands if c in clear_ones]
+
+    chosen, _, _ = binmod._choose_grasp(grasps, [0, 1], [False, False], clear)
+    assert chosen == (1, ["1-touch"])
+    clear_ones = set()
+    chosen, _, _ = binmod._choose_grasp(grasps, [0, 1], [False, False], clear)
+    assert chosen == (0, ["0-fixed"])
+    # without ``clear``: as before
+    assert binmod._choose_grasp(grasps, [0, 1], [False, False])[0] == (0, ["0-fixed"])
