@@ -157,3 +157,6 @@ def test_icp_about_an_axis_turns_only_about_it() -> None:
     assert pose_error(kept.matrix, T_true)[1] > 3.9
     free = icp_point_to_plane(surface, scene, tilted, max_distance=0.01)
     assert pose_error(free.matrix, T_true)[1] < 0.3
+    for bad in ([0.0, 0.0, 0.0], [1.0, 0.0], [np.nan, 0.0, 1.0]):
+        with pytest.raises(DataError, match="non-zero axis"):
+            icp_point_to_plane(surface, scene, tilted, max_distance=0.01, axis=bad)

@@ -166,7 +166,9 @@ def icp_point_to_plane(
     scene = np.asarray(scene_points, dtype=np.float64)
     basis: FloatArray | None = None
     if axis is not None:
-        f = np.asarray(axis, dtype=np.float64).reshape(3)
+        f = np.asarray(axis, dtype=np.float64).ravel()
+        if f.shape != (3,) or not np.all(np.isfinite(f)) or np.linalg.norm(f) < 1e-12:
+            raise DataError(f"icp_point_to_plane: expected a (3,) non-zero axis, got {axis!r}")
         f = f / np.linalg.norm(f)
         basis = np.zeros((6, 4))  # columns: turn about f, translations
         basis[:3, 0] = f
