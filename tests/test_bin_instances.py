@@ -209,29 +209,36 @@ def test_the_part_has_one_near_twin_and_the_cube_none():
     assert len(near_symmetries(cube, cube_rotations())) == 0
 
 
+def _found_from_one_vote(monkeypatch, truth, vote):
+    """``localize_all`` on a scan of one part at ``truth`` when every vote proposes only the
+    pose ``vote``: (found, (mm, deg) of the nearest found pose from the truth)."""
+    import mks_sim.localize as loc_mod
+    from mks_sim.models.pose import PoseHypothesis
+
+    real = loc_mod.localize_cloud
+
+    def vote_only(model_, points, **kwargs):  # noqa: ANN001, ANN202, ANN003
+        out = real(model_, points, **kwargs)
+        h = PoseHypothesis(vote, vote[:3, 3].copy(), votes=10)
+        return type(out)(**{**out.__dict__, "hypotheses": (h,), "segment_of": (0,)})
+
+    monkeypatch.setattr(loc_mod, "localize_cloud", vote_only)
+    pts = _scan((truth,))
+    result = localize_all(instance_model("part"), pts, table=TABLE, rng=np.random.default_rng(0))
+    if not result.found:
+        return 0, None
+    return result.found, _errors([i.matrix for i in result.instances], [truth])[0]
+
+
 def test_a_near_twin_pose_from_the_vote_is_turned_back(monkeypatch):
     """The vote proposes only the part turned half round about its height axis (what tuning
     bin 9 reported, score 0.99): the near-twin check turns it back to the pose the points
     were scanned at."""
-    import mks_sim.localize as loc_mod
-    from mks_sim.models.pose import PoseHypothesis
-
-    model = instance_model("part")
     truth = POSES[0]
-    pts = _scan(POSES[:1])
-    turn = np.diag([-1.0, -1.0, 1.0, 1.0])
-    flipped = truth @ turn  # the part's bounding box is centred on its origin in x, y
-    real = loc_mod.localize_cloud
-
-    def vote_flipped(model_, points, **kwargs):  # noqa: ANN001, ANN202, ANN003
-        out = real(model_, points, **kwargs)
-        h = PoseHypothesis(flipped, flipped[:3, 3].copy(), votes=10)
-        return type(out)(**{**out.__dict__, "hypotheses": (h,), "segment_of": (0,)})
-
-    monkeypatch.setattr(loc_mod, "localize_cloud", vote_flipped)
-    result = localize_all(model, pts, table=TABLE, rng=np.random.default_rng(0))
-    assert result.found == 1
-    ((mm, deg),) = _errors([i.matrix for i in result.instances], POSES[:1])
+    flipped = truth @ np.diag([-1.0, -1.0, 1.0, 1.0])  # the box is centred on x, y = 0
+    found, err = _found_from_one_vote(monkeypatch, truth, flipped)
+    assert found == 1
+    mm, deg = err
     assert mm < 2.0 and deg < 2.0, (mm, deg)
 
 
@@ -240,27 +247,14 @@ def test_a_part_upside_down_is_found_from_its_upright_vote(monkeypatch):
     lying upside down, shows its bottom (tuning bin 15: such candidates explained 270 of
     1150 points and the part was not found): turned over about a face of its bounding box,
     it is found at the pose the points were scanned at."""
-    import mks_sim.localize as loc_mod
-    from mks_sim.models.pose import PoseHypothesis
-
-    model = instance_model("part")
     # upside down on the table: half round about its x axis, its 30 mm height below the
     # origin (the bottom face, z = 0 in the model frame) then facing up at 30 mm
     truth = _pose(-0.01, 0.02, 25.0, z=TABLE_Z + 0.03) @ np.diag([1.0, -1.0, -1.0, 1.0])
-    pts = _scan((truth,))
     upright = truth @ np.diag([1.0, -1.0, -1.0, 1.0])  # the same bottom face, body up
     assert _errors([upright], [truth])[0][1] > 170.0
-    real = loc_mod.localize_cloud
-
-    def vote_upright(model_, points, **kwargs):  # noqa: ANN001, ANN202, ANN003
-        out = real(model_, points, **kwargs)
-        h = PoseHypothesis(upright, upright[:3, 3].copy(), votes=10)
-        return type(out)(**{**out.__dict__, "hypotheses": (h,), "segment_of": (0,)})
-
-    monkeypatch.setattr(loc_mod, "localize_cloud", vote_upright)
-    result = localize_all(model, pts, table=TABLE, rng=np.random.default_rng(0))
-    assert result.found == 1
-    ((mm, deg),) = _errors([i.matrix for i in result.instances], [truth])
+    found, err = _found_from_one_vote(monkeypatch, truth, upright)
+    assert found == 1
+    mm, deg = err
     assert mm < 2.0 and deg < 2.0, (mm, deg)
 
 
