@@ -1236,9 +1236,7 @@ def _rest(
     T0, face = got
     pts = np.asarray(model.surface_points(), dtype=np.float64)
     surface = _model_surface(model, pts)
-    centre = T0[:3, :3] @ pts.mean(axis=0) + T0[:3, 3]
-    radius = float(np.max(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
-    near = objects[np.linalg.norm(objects - centre, axis=1) <= radius + 2 * d]
+    near = _points_near(T0, pts, objects, d)
     if len(near) < 10:
         return False
     icp = icp_point_to_plane(
@@ -1459,6 +1457,15 @@ def _hop(
     return [v.hypothesis for v in verified[:3]]
 
 
+def _points_near(T: FloatArray, pts: FloatArray, objects: FloatArray, d: float) -> FloatArray:
+    """The object points within the model's bounding sphere (about its samples' centroid,
+    ``pts`` in the model frame) + 2 ``d`` of pose ``T``: what ICP of that pose fits."""
+    centre = pts.mean(axis=0)
+    radius = float(np.max(np.linalg.norm(pts - centre, axis=1)))
+    c = T[:3, :3] @ centre + T[:3, 3]
+    return objects[np.linalg.norm(objects - c, axis=1) <= radius + 2 * d]
+
+
 def _refine_near(
     hyps: list[PoseHypothesis], model: Any, objects: FloatArray, d: float, rng: np.random.Generator
 ) -> list[PoseHypothesis]:
@@ -1467,15 +1474,12 @@ def _refine_near(
         return []
     pts = np.asarray(model.surface_points(), dtype=np.float64)
     surface = _model_surface(model, pts)
-    centre = pts.mean(axis=0)
-    radius = float(np.max(np.linalg.norm(pts - centre, axis=1)))
     out: list[PoseHypothesis] = []
     for h in hyps:
         T = np.asarray(h.matrix, dtype=np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             continue
-        c = T[:3, :3] @ centre + T[:3, 3]
-        near = objects[np.linalg.norm(objects - c, axis=1) <= radius + 2 * d]
+        near = _points_near(T, pts, objects, d)
         if len(near) < 10:
             continue
         verified = verify_hypotheses(

@@ -718,11 +718,8 @@ class BinPicker:
         obstacles) reordered by :func:`clear_of_neighbours_first`, or [] when no top-down
         one keeps its open fingers clear of the other instances' points."""
         parts = obstacle_sets(self.sensed, i, self.samples, self.table_z)[1]
-        ordered = clear_of_neighbours_first(cands, parts)
-        first = ordered[0] if ordered else None
-        if first is None or getattr(first, "rotation_world", None) is not None:
-            return []
-        return ordered if not fingers_blocked(first, parts, NEIGHBOUR_MARGIN_M) else []
+        clear, blocked, tilted = _split_clear(cands, parts)
+        return clear + blocked + tilted if clear else []
 
     def _untried(self, cands: Sequence[Any], obstacles: str) -> list[Any]:
         """``cands`` without those alike (:func:`_alike`: the hand within 25 degrees and
@@ -1133,13 +1130,20 @@ def clear_of_neighbours_first(cands: Sequence[Any], parts: np.ndarray) -> list[A
     the other top-down ones, then the tilted ones; each group in its order. A planning
     round in which neighbours are no obstacles drew fingertips onto a neighbour's top:
     of 38 descents stopped short (tuning bins 0-11), 20 within 12 mm of the grasp depth."""
+    clear, blocked, tilted = _split_clear(cands, parts)
+    return clear + blocked + tilted
+
+
+def _split_clear(cands: Sequence[Any], parts: np.ndarray) -> tuple[list[Any], list[Any], list[Any]]:
+    """``cands`` as (top-down clear of ``parts`` by :data:`NEIGHBOUR_MARGIN_M`, top-down
+    blocked, tilted), each in its order (:func:`fingers_blocked` once per candidate)."""
     top = [c for c in cands if getattr(c, "rotation_world", None) is None]
     tilted = [c for c in cands if getattr(c, "rotation_world", None) is not None]
-    clear = [not fingers_blocked(c, parts, NEIGHBOUR_MARGIN_M) for c in top]
+    ok = [not fingers_blocked(c, parts, NEIGHBOUR_MARGIN_M) for c in top]
     return (
-        [c for c, ok in zip(top, clear, strict=True) if ok]
-        + [c for c, ok in zip(top, clear, strict=True) if not ok]
-        + tilted
+        [c for c, k in zip(top, ok, strict=True) if k],
+        [c for c, k in zip(top, ok, strict=True) if not k],
+        tilted,
     )
 
 
