@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import itertools
 import weakref
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -240,6 +241,13 @@ def _model_spacing(surface_pts: FloatArray) -> float:
     return spacing
 
 
+def _flatten(lists: Any) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """(lengths, concatenated indices) of the index lists a ball query returns."""
+    lens = np.fromiter(map(len, lists), dtype=np.intp, count=len(lists))
+    flat = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.intp, count=int(lens.sum()))
+    return lens, flat
+
+
 def consistency(
     T: FloatArray,
     surface_pts: FloatArray,
@@ -287,8 +295,9 @@ def consistency(
         # a point whose nearest sample faces away may still have a seen one within d
         amb = np.flatnonzero(close & ~seen[idx])
         if len(amb):
-            balls = model_tree.query_ball_point(q[amb], r=d)
-            explained[amb] = [bool(seen[b].any()) for b in balls]
+            lens_a, flat_a = _flatten(model_tree.query_ball_point(q[amb], r=d))
+            hit = np.repeat(np.arange(len(amb)), lens_a)[seen[flat_a]]
+            explained[amb[hit]] = True
         sd = np.einsum("ij,ij->i", q - surface_pts[idx], surface_nrm[idx])
         sd[close] = 0.0  # on the surface (a visible or a resting face): not inside
         inside = (~explained) & (sd < -d)
@@ -304,10 +313,8 @@ def consistency(
             high = np.flatnonzero(P[:, 2] > zq.min() - d)
             if len(high) >= 2:
                 foot = cKDTree(P[high, :2])
-                cols = foot.query_ball_point(near[rest, :2], r=0.5 * d)
-                lens = np.fromiter((len(c) for c in cols), dtype=np.intp, count=len(cols))
+                lens, flat = _flatten(foot.query_ball_point(near[rest, :2], r=0.5 * d))
                 if lens.sum():
-                    flat = np.concatenate([c for c in cols if len(c)]).astype(np.intp)
                     grp = np.repeat(np.arange(len(rest)), lens)
                     z = P[high[flat], 2]
                     above = z > zq[grp] + 2 * d
@@ -338,13 +345,15 @@ def consistency(
                         ray_z = np.repeat(zq[idx_u] + 1.2 * gap + 0.1 * d, 8)
                         # (over twice the reach: a random sampling of the underside alone
                         # leaves holes wider than the reach of the whole footprint)
-                        hits = foot.query_ball_point(probe.reshape(-1, 2), r=2.0 * reach)
-                        z_high = P[high, 2]
-                        blocked = np.fromiter(
-                            (len(h) > 0 and z_high[h].min() <= rz for h, rz in zip(hits, ray_z)),
-                            dtype=bool,
-                            count=len(ray_z),
+                        lens_h, flat_h = _flatten(
+                            foot.query_ball_point(probe.reshape(-1, 2), r=2.0 * reach)
                         )
+                        z_min = np.full(len(ray_z), np.inf)  # lowest model sample near each
+                        some = lens_h > 0
+                        if some.any():
+                            starts = (np.cumsum(lens_h) - lens_h)[some]
+                            z_min[some] = np.minimum.reduceat(P[high[flat_h], 2], starts)
+                        blocked = z_min <= ray_z
                         dist = foot.query(probe.reshape(-1, 2), distance_upper_bound=reach)[0]
                         blocked &= np.isfinite(dist)
                         covered = blocked.reshape(len(idx_u), 8).all(axis=1)
