@@ -135,6 +135,24 @@ def test_sim_bin_of_three_parts_localized(capsys):
     assert rec["view_names"][0] == "range_finder#0" and rec["views"] == len(rec["view_names"])
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [26, 32])
+def test_six_part_bins_without_the_turned_parts_reported(seed):
+    """Tuning bins where a part was reported turned (simulator truth, evaluation only):
+    bin 32, the vote's candidate 5.6 mm off failed and its near-twin passed, polished to
+    0.1 mm and 180 deg off (571 points; the twin of the polished pose explains 589 and sees
+    nothing through itself); bin 26, a part reported turned over about its y axis (0.8 mm,
+    179.5 deg, 8 points seen through it; the truth explains 1492 points to its 1135). Every
+    reported instance is correct and every instance >= 30 % visible but one is found."""
+    from mks_sim.tasks.bin import run_localize_all
+
+    rec = run_localize_all(seed)
+    assert rec["present"] == 6
+    assert rec["false_positives"] == 0, [i["error"] for i in rec["instances"]]
+    visible_missed = [m for m in rec["missed"] if m["visible_fraction"] >= 0.3]
+    assert len(visible_missed) <= 1, visible_missed
+
+
 def test_cli_all_bad_input():
     from mks_sim.cli import main
 
