@@ -130,7 +130,7 @@ def test_a_held_part_is_lowered_into_the_box_middle_first(hang_m):
 
     R = down_rotation(0.7)
     hand = _FakeHand([0.05, -0.02, table_z + 0.16], R)
-    assert binmod._carry_to_box(hand, corners_pinch, table_z, None, 0.1) == ""
+    assert binmod._carry_to_box(hand, corners_pinch, table_z, None) == ""
     W = corners_pinch @ R.T + hand.pos
     assert np.allclose(0.5 * (W[:, :2].min(0) + W[:, :2].max(0)), binmod.OUTPUT_BOX_XY)
     lowest = min(W[:, 2].min(), hand.pos[2] - binmod.TIPS_BELOW_PINCH_M)
@@ -158,8 +158,56 @@ def test_pads_pressed_on_each_other_hold_nothing():
         def finger_qpos(self):
             return np.array(self.q)
 
-    assert not binmod._held(Hand([1.32, 1.35, 1.30]), 0.1)
-    assert binmod._held(Hand([0.9, 1.35, 0.9]), 0.1)
+    assert not binmod._held(Hand([1.32, 1.35, 1.30]))
+    assert binmod._held(Hand([0.9, 1.35, 0.9]))
+
+
+def test_a_part_on_the_fingers_beyond_the_pads_is_held():
+    """No pad touches, or the pads of one side only, but a finger stopped short of
+    EMPTY_HAND_Q: a part rests on the fingers' links (the traced states of tuning bins 8 and
+    1: lifted 10 cm, fingers at 1.06, 1.16, 1.30 rad with every pad under 10 mN, and at
+    0.99, 1.33, 1.31 with finger 1's pad alone touching); the states of parts that slipped
+    out (1.27, 1.35, 1.35 and 1.31, 1.35, 1.31 with finger 1's and 3's pads pressed
+    together) hold nothing."""
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+
+    class Hand:
+        def __init__(self, q, touch=(0.002, 0.004, 0.008)):
+            self.q, self.t = q, touch
+
+        def touch(self):
+            return np.array(self.t)
+
+        def finger_qpos(self):
+            return np.array(self.q)
+
+    assert binmod._held(Hand([1.061, 1.161, 1.301]))
+    assert binmod._held(Hand([0.989, 1.327, 1.305], (14.9, 0.006, 0.009)))
+    assert not binmod._held(Hand([1.272, 1.35, 1.35], (13.8, 0.006, 13.8)))
+    assert not binmod._held(Hand([1.312, 1.35, 1.309], (15.3, 0.004, 15.3)))
+
+
+@pytest.mark.slow
+def test_fingers_closed_on_nothing_close_past_the_empty_hand_angle():
+    """The premise of _held, in the simulator: the hand above the bin with nothing between
+    the fingers, squeezing at full command (as after a grasp), closes every finger past
+    EMPTY_HAND_Q -- not a hold -- while fingers held at 0.9 rad (stopped by a part) are one."""
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+    from mks_sim.tasks.controller import ArmHandController, RobotNames
+
+    world = binmod.bin_world(None, count=1)
+    ctl = ArmHandController(world.physics, RobotNames.from_model(world.model), lambda: np.zeros(3))
+    ctl.preshape(0.9, 60)
+    assert binmod._held(ctl)
+    ctl.finger_target, ctl.grip = None, 1.0
+    ctl.step(100)
+    q = ctl.finger_qpos()
+    assert np.all(q > binmod.EMPTY_HAND_Q), q
+    assert not binmod._held(ctl)
 
 
 def test_parts_let_go_in_the_box_do_not_overlap():
@@ -382,7 +430,7 @@ def test_a_part_that_will_fall_over_is_let_go_with_room_to_fall(before):
     # 60 mm down from the fingers
     corners = np.array(list(itertools.product((-0.015, 0.015), (-0.05, 0.05), (0.0, 0.06))))
     hand = _TurningHand([0.05, -0.02, table_z + 0.16], down_rotation(0.3))
-    assert binmod._carry_to_box(hand, corners, table_z, None, 0.1, placed=placed) == ""
+    assert binmod._carry_to_box(hand, corners, table_z, None, placed=placed) == ""
     W = corners @ hand.R.T + hand.pos
     W[:, 2] -= W[:, 2].min() - table_z  # let go: it drops onto the floor
     inside = np.asarray(binmod.OUTPUT_BOX_HALF_XY) - 0.004  # the walls are 8 mm thick
