@@ -241,11 +241,14 @@ def localize_all(
             by_segment.setdefault(si, []).append(h)
         use_table = table if table is not None else loc.table
 
+        free_tree: list[cKDTree] = []  # of the pass's free points, built when first asked
+
         def accept(
             hyps: list[PoseHypothesis],
             free: NDArray[np.intp] = free,
             use_table: Plane | None = use_table,
             pass_index: int = passes - 1,
+            free_tree: list[cKDTree] = free_tree,
         ) -> bool:
             def better(h: PoseHypothesis, best: Instance | None) -> Instance | None:
                 """``h`` checked as an instance when it passes and explains more points than
@@ -259,6 +262,21 @@ def localize_all(
                 if inst is None or inst.score < min_score:
                     return best
                 return inst if best is None or inst.explained > best.explained else best
+
+            def better_of(poses: Any, best: Instance | None) -> Instance | None:
+                """:func:`better` over (4, 4) poses in turn."""
+                for T in poses:
+                    best = better(PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3]), best)
+                return best
+
+            def turned_over(pose: FloatArray) -> FloatArray:
+                """The :data:`FLIPS_CHECKED` turns of ``pose`` (:func:`_turned_over`) that
+                land the most model samples on free points (one batch query)."""
+                if not free_tree:
+                    free_tree.append(cKDTree(cloud[free]))
+                turned = pose @ flips
+                n_near = batch_explained(flip_samples, turned, free_tree[0], 2 * d)
+                return turned[np.argsort(-n_near, kind="stable")[:FLIPS_CHECKED]]
 
             best: Instance | None = None
             for h in hyps[:per_segment]:
@@ -274,18 +292,13 @@ def localize_all(
             else:
                 return False
             polished = best is not None
-            for S in twins:
-                T = base @ S
-                best = better(PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3]), best)
+            best = better_of(base @ twins, best)
             if not polished and best is not None:
                 # the twin of an unpolished candidate passed (the candidate itself, a few mm
                 # off, did not): the candidate's turn again, now about the polished pose
                 # (tuning bins 29 and 32: the twin won with 868 and 571 points, its own twin
                 # explains 1047 and 589 and sees nothing through itself)
-                again = best.matrix
-                for S in twins:
-                    T = again @ S
-                    best = better(PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3]), best)
+                best = better_of(best.matrix @ twins, best)
             if best is not None and best.check.inside > 0:
                 # an accepted pose through which points are seen may be the part turned
                 # over (tuning bin 26: 0.8 mm and 179.5 deg off about the model's y axis
@@ -293,22 +306,13 @@ def localize_all(
                 # 1492 and none): its best turns compete. Turning every accepted pose
                 # cost instances (tuning bins 20-39: 98 -> 95 of 103 found: a turn
                 # explaining a neighbour's points as well took them)
-                turned = best.matrix @ flips
-                n_near = batch_explained(flip_samples, turned, cKDTree(cloud[free]), 2 * d)
-                for k in np.argsort(-n_near, kind="stable")[:FLIPS_CHECKED]:
-                    T = turned[k]
-                    best = better(PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3]), best)
+                best = better_of(turned_over(best.matrix), best)
             if best is None:
                 # nothing passed: the first candidate turned over (a part lying upside down
                 # shows its flat bottom, which the upright pose puts its own bottom on:
                 # tuning bin 15, candidates 0.5 mm and 178 deg off a part explained 270 of
-                # its 1150 points); the turns that land the most model samples on free
-                # points (one batch query) are checked
-                turned = base @ flips
-                n_near = batch_explained(flip_samples, turned, cKDTree(cloud[free]), 2 * d)
-                for k in np.argsort(-n_near, kind="stable")[:FLIPS_CHECKED]:
-                    T = turned[k]
-                    best = better(PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3]), best)
+                # its 1150 points)
+                best = better_of(turned_over(base), best)
                 if best is not None and best.score < MIN_FLIP_SCORE:
                     best = None
             if best is None:
