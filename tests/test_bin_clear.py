@@ -370,8 +370,7 @@ def test_a_wall_beside_a_part_is_an_obstacle_to_its_grasp():
     assert as_set(obs) == as_set(np.concatenate([neighbour, wall]))
     obs = binmod.grasp_obstacles(sensed, 0, samples, table_z, parts=False)
     assert as_set(obs) == as_set(wall)
-    fixed, parts = binmod.obstacle_sets(sensed, 0, samples, table_z)
-    assert as_set(fixed) == as_set(wall) and as_set(parts) == as_set(neighbour)
+    assert as_set(binmod.neighbour_points(sensed, 0, table_z)) == as_set(neighbour)
 
 
 class _TurningHand(_FakeHand):
@@ -606,8 +605,8 @@ def test_candidates_clear_of_the_neighbours_go_first():
     top = np.array([[centres[0, 0], -centres[0, 1], 0.775]])
     on, clear_a, clear_b = cand(0.0), cand(0.2), cand(-0.2)
     tilted = cand(0.0, rotation=((1, 0, 0), (0, -1, 0), (0, 0, -1)))
-    ordered = binmod.clear_of_neighbours_first([on, clear_a, tilted, clear_b], top)
-    assert ordered == [clear_a, clear_b, on, tilted]
+    split = binmod._split_clear([on, clear_a, tilted, clear_b], top)
+    assert split == ([clear_a, clear_b], [on], [tilted])
     # brute force: the point blocks exactly when it is within the footprint + margin of a
     # finger centre (moved out along x, beyond the disc: clear)
     for dx in np.linspace(0.0, 0.03, 31):

@@ -715,9 +715,9 @@ class BinPicker:
 
     def clear_of_neighbours(self, i: int, cands: Sequence[Any]) -> list[Any]:
         """``cands`` of instance ``i`` (:meth:`grasps` of a round in which neighbours are no
-        obstacles) reordered by :func:`clear_of_neighbours_first`, or [] when no top-down
-        one keeps its open fingers clear of the other instances' points."""
-        parts = obstacle_sets(self.sensed, i, self.samples, self.table_z)[1]
+        obstacles) reordered by :func:`_split_clear` (clear, blocked, tilted), or [] when no
+        top-down one keeps its open fingers clear of the other instances' points."""
+        parts = neighbour_points(self.sensed, i, self.table_z)
         clear, blocked, tilted = _split_clear(cands, parts)
         return clear + blocked + tilted if clear else []
 
@@ -1049,17 +1049,12 @@ def grasp_obstacles(
     return np.asarray(P[~own & (P[:, 2] > table_z + 0.004)])
 
 
-def obstacle_sets(
-    sensed: Any, i: int, samples: np.ndarray, table_z: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """((K, 3), (L, 3)) the sensed points that are obstacles to a grasp of instance ``i``,
-    apart: those no instance explains (the walls, anything not found) and those the other
-    instances claimed (neighbouring parts, which the fingers may push). Together they are
-    :func:`grasp_obstacles`."""
-    fixed = grasp_obstacles(sensed, i, samples, table_z, parts=False)
+def neighbour_points(sensed: Any, i: int, table_z: float) -> np.ndarray:
+    """(L, 3) the sensed points the other instances than ``i`` claimed, above the table
+    (neighbouring parts, which the fingers may push): the part of :func:`grasp_obstacles`
+    that ``parts=False`` leaves out."""
     P = sensed.scene_points
-    parts = _claimed_mask(sensed, i) & (P[:, 2] > table_z + 0.004)
-    return fixed, np.asarray(P[parts])
+    return np.asarray(P[_claimed_mask(sensed, i) & (P[:, 2] > table_z + 0.004)])
 
 
 #: The open fingers' footprint, measured on the hand's meshes (``mks_sim.sim.robot``: the
@@ -1124,19 +1119,12 @@ def fingers_blocked(cand: Any, points: np.ndarray, margin_m: float) -> bool:
     return bool(np.any(d < radius + margin_m))
 
 
-def clear_of_neighbours_first(cands: Sequence[Any], parts: np.ndarray) -> list[Any]:
-    """``cands`` with the top-down ones whose open fingers stay :data:`NEIGHBOUR_MARGIN_M`
-    clear of the neighbours' points ``parts`` (M, 3) first (:func:`fingers_blocked`), then
-    the other top-down ones, then the tilted ones; each group in its order. A planning
-    round in which neighbours are no obstacles drew fingertips onto a neighbour's top:
-    of 38 descents stopped short (tuning bins 0-11), 20 within 12 mm of the grasp depth."""
-    clear, blocked, tilted = _split_clear(cands, parts)
-    return clear + blocked + tilted
-
-
 def _split_clear(cands: Sequence[Any], parts: np.ndarray) -> tuple[list[Any], list[Any], list[Any]]:
-    """``cands`` as (top-down clear of ``parts`` by :data:`NEIGHBOUR_MARGIN_M`, top-down
-    blocked, tilted), each in its order (:func:`fingers_blocked` once per candidate)."""
+    """``cands`` as (the top-down ones whose open fingers stay :data:`NEIGHBOUR_MARGIN_M`
+    clear of the neighbours' points ``parts`` (M, 3), the other top-down ones, the tilted
+    ones), each in its order (:func:`fingers_blocked` once per candidate). A planning round
+    in which neighbours are no obstacles drew fingertips onto a neighbour's top: of 38
+    descents stopped short (tuning bins 0-11), 20 within 12 mm of the grasp depth."""
     top = [c for c in cands if getattr(c, "rotation_world", None) is None]
     tilted = [c for c in cands if getattr(c, "rotation_world", None) is not None]
     ok = [not fingers_blocked(c, parts, NEIGHBOUR_MARGIN_M) for c in top]
