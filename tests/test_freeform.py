@@ -191,9 +191,9 @@ def test_pair_consistency_and_reused_keypoints_match_the_direct_computation() ->
     seen: dict[str, np.ndarray] = {}
     real = ff._triangles
 
-    def spy(cons, cap, rng):
+    def spy(cons, edges, cap, rng, compiled=False):
         seen["cons"] = cons.copy()
-        return real(cons, cap, rng)
+        return real(cons, edges, cap, rng, compiled=compiled)
 
     first = model.detect(pts, nrm)
     assert first.keypoints is not None
@@ -219,22 +219,74 @@ def test_pair_consistency_and_reused_keypoints_match_the_direct_computation() ->
         np.testing.assert_allclose(a.matrix, b.matrix)
 
 
-def test_closed_form_triangle_fit_equals_kabsch() -> None:
-    from mks_sim.models.freeform import _batched_rigid, _triangle_rigid
+@pytest.mark.parametrize("compiled", [False, True])
+def test_closed_form_triangle_fit_equals_kabsch(compiled: bool) -> None:
+    from mks_sim.models.freeform import _batched_rigid, _compiled_available, _triangle_rigid
 
+    if compiled and not _compiled_available():
+        pytest.skip("numba does not import here")
     rng = np.random.default_rng(4)
     src = rng.normal(size=(500, 3, 3)) * 0.05
     rot = np.stack([random_rotation(rng) for _ in range(500)])
     noisy = np.einsum("tij,tkj->tki", rot, src) + rng.normal(size=(500, 3, 3)) * 0.001
     for dst in (noisy, rng.normal(size=(500, 3, 3)) * 0.05):  # near-congruent, arbitrary
         r1, t1 = _batched_rigid(src, dst)
-        r2, t2 = _triangle_rigid(src, dst)
+        r2, t2 = _triangle_rigid(src, dst, compiled=compiled)
         np.testing.assert_allclose(r2, r1, atol=1e-9)
         np.testing.assert_allclose(t2, t1, atol=1e-9)
-    line = np.zeros((1, 3, 3))
-    line[0, :, 0] = [0.0, 1.0, 2.0]  # collinear: falls back to the SVD
-    r1, _ = _batched_rigid(line, line + 1.0)
-    np.testing.assert_allclose(_triangle_rigid(line, line + 1.0)[0], r1)
+    line = np.zeros((2, 3, 3))
+    line[:, :, 0] = [0.0, 1.0, 2.0]  # collinear: falls back to the SVD
+    line[1] = src[0]  # beside a regular triangle
+    r1, t1 = _batched_rigid(line, line + 1.0)
+    r2, t2 = _triangle_rigid(line, line + 1.0, compiled=compiled)
+    np.testing.assert_allclose(r2, r1, atol=1e-12)
+    np.testing.assert_allclose(t2, t1, atol=1e-12)
+
+
+def test_compiled_pairing_kernels_equal_the_numpy_paths() -> None:
+    # The numba consistency, triangle listing and rotation clustering compute what the numpy
+    # paths compute: the same matrix, edges and triangles in the same order, and (on a real
+    # scene) the same hypotheses to rounding.
+    from mks_sim.models import freeform as ff
+
+    if not ff._compiled_available():
+        pytest.skip("numba does not import here")
+    rng = np.random.default_rng(7)
+    kp = rng.uniform(0, 0.1, size=(40, 3)).astype(np.float32)
+    dk = np.sqrt(((kp[:, None] - kp[None]) ** 2).sum(axis=-1))
+    mp = rng.uniform(0, 0.1, size=(60, 3))
+    dm = np.linalg.norm(mp[:, None] - mp[None], axis=-1).astype(np.float32)
+    pair_s = np.repeat(np.arange(40), 8)
+    pair_m = rng.integers(0, 60, size=len(pair_s))
+    for order in (np.arange(len(pair_s)), rng.permutation(len(pair_s))):  # grouped, not
+        ps, pm = pair_s[order], pair_m[order]
+        cons_n, edges_n = ff._consistent(dk, ps, dm, pm, 0.01, 0.02, compiled=False)
+        cons_c, edges_c = ff._consistent(dk, ps, dm, pm, 0.01, 0.02, compiled=True)
+        assert cons_n.any() and not cons_n.all()
+        assert np.array_equal(cons_c, cons_n)
+        assert all(np.array_equal(x, y) for x, y in zip(edges_c, edges_n, strict=True))
+        for cap in (10**6, 500):  # all triangles; thinned edges and a random subset
+            tri_n = ff._triangles(cons_n, edges_n, cap, np.random.default_rng(0))
+            tri_c = ff._triangles(cons_c, edges_c, cap, np.random.default_rng(0), compiled=True)
+            assert len(tri_n) and np.array_equal(tri_c, tri_n)
+    # brute force: every listed triangle is consistent on all three sides, none is missed
+    tri = ff._triangles(cons_c, edges_c, 10**6, np.random.default_rng(0), compiled=True)
+    a, b, c = np.nonzero(cons_c[:, :, None] & cons_c[:, None, :] & cons_c[None, :, :])
+    up = (a < b) & (b < c)
+    assert {tuple(t) for t in tri} == set(zip(a[up], b[up], c[up], strict=True))
+    model = _model("part")
+    pts, nrm, _ = _scene(industrial_part_mesh(), 5)
+    real = ff._compiled_available
+    try:
+        ff._compiled_available = lambda: False
+        plain = model.detect(pts, nrm)
+    finally:
+        ff._compiled_available = real
+    fast = model.detect(pts, nrm)
+    assert plain.n_pairings >= ff._COMPILED_MIN_PAIRS and plain.hypotheses
+    assert [h.votes for h in fast.hypotheses] == [h.votes for h in plain.hypotheses]
+    for x, y in zip(fast.hypotheses, plain.hypotheses, strict=True):
+        np.testing.assert_allclose(x.matrix, y.matrix, atol=1e-12)
 
 
 def test_ball_statistics_and_signed_normals_match_brute_force() -> None:

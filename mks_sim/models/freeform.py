@@ -178,7 +178,9 @@ class FreeformResult:
     )
 
 
-def _triangle_rigid(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, FloatArray]:
+def _triangle_rigid(
+    src: FloatArray, dst: FloatArray, *, compiled: bool = False
+) -> tuple[FloatArray, FloatArray]:
     """Rigid fits of (T, 3, 3) triangles -> triangles, in closed form (no SVD).
 
     Three points span a plane, so the proper rotation that best fits them maps the source
@@ -186,8 +188,16 @@ def _triangle_rigid(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, Float
     solution excluded as in :func:`_batched_rigid`) composed with the best in-plane rotation,
     a 2-D Procrustes angle. Equals :func:`_batched_rigid` for triangles whose orientation
     agrees (every congruent pair; the tests compare both); degenerate (collinear) triangles
-    fall back to it.
+    fall back to it. ``compiled``: triangle by triangle in the numba kernel
+    (:func:`mks_sim.models._freeform_kernels.triangle_rigid`, the same arithmetic).
     """
+    if compiled:
+        from mks_sim.models._freeform_kernels import triangle_rigid
+
+        r, t, bad = triangle_rigid(np.ascontiguousarray(src), np.ascontiguousarray(dst))
+        if bad.any():
+            r[bad], t[bad] = _batched_rigid(src[bad], dst[bad])
+        return r, t
     # Sums over axes of length 3 written out: numpy's reductions cost more than the
     # arithmetic at this size, and the sums are the same (left to right).
     cs = (src[:, 0] + src[:, 1] + src[:, 2]) / 3.0
@@ -690,22 +700,20 @@ class FreeformModel:
         m_pos = self.model_points[pair_m]
         n_pair = len(pair_s)
         # Rigid consistency of every two pairings (C x C), from the (K x K) keypoint distances
-        # and the model's table (gathers, no (C, C, 3) temporaries).
+        # and the model's table.
         kp_pos = scene[kp_idx].astype(np.float32)
         dk = np.sqrt(((kp_pos[:, None] - kp_pos[None]) ** 2).sum(axis=-1))  # (K, K)
-        if np.all(pair_s[1:] >= pair_s[:-1]):  # grouped by keypoint (np.nonzero order)
-            per = np.bincount(pair_s, minlength=len(kp_idx))
-            ds = np.repeat(np.repeat(dk, per, axis=0), per, axis=1)  # 4x faster than take
-        else:
-            ds = np.take(np.take(dk, pair_s, axis=0), pair_s, axis=1)
-        cons = ds >= np.float32(cfg.min_side)
-        ds -= np.take(np.take(self._model_dist32, pair_m, axis=0), pair_m, axis=1)
-        np.abs(ds, out=ds)
-        cons &= ds <= np.float32(cfg.distance_tolerance)
-        tri = _triangles(cons, cfg.max_triangles, np.random.default_rng(cfg.seed))
+        compiled = n_pair >= _COMPILED_MIN_PAIRS and _compiled_available()
+        cons, edges = _consistent(
+            dk, pair_s, self._model_dist32, pair_m, cfg.min_side, cfg.distance_tolerance,
+            compiled=compiled,
+        )  # fmt: skip
+        tri = _triangles(
+            cons, edges, cfg.max_triangles, np.random.default_rng(cfg.seed), compiled=compiled
+        )
         if len(tri) == 0:
             return FreeformResult([], len(kp_idx), n_pair, 0, keypoints)
-        rot, trans = _triangle_rigid(m_pos[tri], s_pos[tri])
+        rot, trans = _triangle_rigid(m_pos[tri], s_pos[tri], compiled=compiled)
         # Verify each triangle's rotation on its normals: the rotated model normals must agree
         # with the scene normals at all three corners (sign-free when normals were estimated).
         # rotated model normals (T, 3 corners, 3), elementwise (batched einsum is slower)
@@ -718,7 +726,7 @@ class FreeformModel:
         if len(tri) == 0:
             return FreeformResult([], len(kp_idx), n_pair, 0, keypoints)
         ref = _dot3(rot, self.reference_point) + trans  # (T, 3) votes for P0
-        hyps = self._peaks(ref, rot, trans, tri, kp_idx[pair_s], pair_m)
+        hyps = self._peaks(ref, rot, trans, tri, kp_idx[pair_s], pair_m, compiled=compiled)
         return FreeformResult(hyps, len(kp_idx), n_pair, len(tri), keypoints)
 
     def _peaks(
@@ -729,6 +737,8 @@ class FreeformModel:
         tri: NDArray[np.int64],
         scene_index: NDArray[np.int64],
         model_index: NDArray[np.int64],
+        *,
+        compiled: bool = False,
     ) -> list[PoseHypothesis]:
         cfg = self.config
         assert cfg.bin_size is not None
@@ -778,8 +788,13 @@ class FreeformModel:
             # the flattened 3x3, not a BLAS matmul: multithreaded BLAS on a busy machine was
             # 5-20x slower here; the flattened form is ~1.5x faster than "aij,bij->ab")
             r9 = r.reshape(len(r), 9)
-            cos = (np.einsum("ak,bk->ab", r9, r9) - 1.0) / 2.0
-            close = cos >= cos_thr
+            if compiled:
+                from mks_sim.models._freeform_kernels import rotations_close
+
+                close = rotations_close(np.ascontiguousarray(r9), float(cos_thr))
+            else:
+                cos = (np.einsum("ak,bk->ab", r9, r9) - 1.0) / 2.0
+                close = cos >= cos_thr
             free = np.ones(len(members), bool)
             for _ in range(cfg.modes_per_peak):
                 support = (close & free[None, :]).sum(axis=1) * free
@@ -838,29 +853,93 @@ def _first_distinct(
     return rows.astype(np.int64), owners[rows, cols].astype(np.int64)
 
 
-def _triangles(cons: NDArray[np.bool_], cap: int, rng: np.random.Generator) -> NDArray[np.int64]:
-    """(T, 3) index triples a < b < c with all three pairs consistent (at most ``cap``)."""
+#: Pairings from which the consistency and the triangles use the compiled kernels
+#: (:mod:`mks_sim.models._freeform_kernels`) when numba imports.
+_COMPILED_MIN_PAIRS = 256
+
+
+def _compiled_available() -> bool:
+    from mks_sim.lowlevel import _gridknn
+
+    return _gridknn.available()
+
+
+def _consistent(
+    dk: NDArray[np.float32],
+    pair_s: NDArray[np.int64],
+    model_dist: NDArray[np.float32],
+    pair_m: NDArray[np.int64],
+    min_side: float,
+    tolerance: float,
+    *,
+    compiled: bool,
+) -> tuple[NDArray[np.bool_], tuple[NDArray[np.int64], NDArray[np.int64]]]:
+    """The (C, C) rigid consistency of the pairings (scene keypoint ``pair_s``, model point
+    ``pair_m``): keypoints at least ``min_side`` apart, at a distance (float32) within
+    ``tolerance`` of their model points'. Returns it and its upper-triangle pairs ``(a, b)``,
+    ``a < b``, in row-major order. ``compiled``: the numba kernel (the same values, no
+    (C, C) temporaries) instead of the numpy gathers."""
+    lo, tol = np.float32(min_side), np.float32(tolerance)
+    if compiled:
+        from mks_sim.models._freeform_kernels import consistent_pairs
+
+        cons, a, b = consistent_pairs(
+            dk,
+            np.ascontiguousarray(pair_s, dtype=np.int64),
+            model_dist,
+            np.ascontiguousarray(pair_m, dtype=np.int64),
+            lo,
+            tol,
+        )
+        return cons, (a, b)
+    if np.all(pair_s[1:] >= pair_s[:-1]):  # grouped by keypoint (np.nonzero order)
+        per = np.bincount(pair_s, minlength=len(dk))
+        ds = np.repeat(np.repeat(dk, per, axis=0), per, axis=1)  # 4x faster than take
+    else:
+        ds = np.take(np.take(dk, pair_s, axis=0), pair_s, axis=1)
+    cons = ds >= lo
+    ds -= np.take(np.take(model_dist, pair_m, axis=0), pair_m, axis=1)
+    np.abs(ds, out=ds)
+    cons &= ds <= tol
     # (np.triu would build a C x C mask and a copy first; the filter keeps row-major order)
     a, b = np.nonzero(cons)
     upper = a < b
-    a, b = a[upper], b[upper]
+    return cons, (a[upper].astype(np.int64), b[upper].astype(np.int64))
+
+
+def _triangles(
+    cons: NDArray[np.bool_],
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]],
+    cap: int,
+    rng: np.random.Generator,
+    *,
+    compiled: bool = False,
+) -> NDArray[np.int64]:
+    """(T, 3) index triples a < b < c with all three pairs consistent (at most ``cap``), from
+    the consistency matrix and its upper-triangle ``edges`` (:func:`_consistent`)."""
+    a, b = edges
     if len(a) == 0:
         return np.zeros((0, 3), np.int64)
     # Expected triangle count ~ edges * mean degree; thin the edge list to stay near the cap.
-    deg = cons.sum(axis=1).mean()
+    deg = 2.0 * len(a) / cons.shape[0]  # (cons is symmetric with an empty diagonal)
     est = len(a) * max(deg, 1.0) / 3.0
     if est > cap:
         keep = rng.random(len(a)) < cap / est
         a, b = a[keep], b[keep]
-    out = []
-    chunk = max(1, 2_000_000 // cons.shape[0])
-    for s in range(0, len(a), chunk):
-        aa, bb = a[s : s + chunk], b[s : s + chunk]
-        common = cons[aa] & cons[bb]  # (E, C)
-        e, c = np.nonzero(common)
-        ok = c > bb[e]
-        out.append(np.stack([aa[e[ok]], bb[e[ok]], c[ok]], 1))
-    tri = np.concatenate(out) if out else np.zeros((0, 3), np.int64)
+    if compiled:
+        from mks_sim.models._freeform_kernels import edge_triangles
+
+        tri = edge_triangles(cons, np.ascontiguousarray(a), np.ascontiguousarray(b))
+    else:
+        out = []
+        chunk = max(1, 2_000_000 // cons.shape[0])
+        for s in range(0, len(a), chunk):
+            aa, bb = a[s : s + chunk], b[s : s + chunk]
+            common = cons[aa] & cons[bb]  # (E, C)
+            e, c = np.nonzero(common)
+            ok = c > bb[e]
+            out.append(np.stack([aa[e[ok]], bb[e[ok]], c[ok]], 1))
+        tri = np.concatenate(out) if out else np.zeros((0, 3), np.int64)
     if len(tri) > cap:
         tri = tri[np.sort(rng.choice(len(tri), cap, replace=False))]
     return tri.astype(np.int64)
