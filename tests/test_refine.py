@@ -37,8 +37,15 @@ def _perturb(T: np.ndarray, deg: float, shift: float, rng: np.random.Generator) 
     return make_transform(dR @ T[:3, :3], T[:3, 3] + shift * d / np.linalg.norm(d))
 
 
+def _paths() -> list[bool]:
+    from mks_sim.models.refine import _compiled_available
+
+    return [False, True] if _compiled_available() else [False]
+
+
+@pytest.mark.parametrize("compiled", _paths())
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_icp_converges_to_ground_truth_on_industrial_part(seed: int) -> None:
+def test_icp_converges_to_ground_truth_on_industrial_part(seed: int, compiled: bool) -> None:
     rng = np.random.default_rng(seed)
     mesh = industrial_part_mesh()
     surface = ModelSurface.from_arrays(*sample_surface(mesh, 4000, rng=rng))
@@ -48,7 +55,7 @@ def test_icp_converges_to_ground_truth_on_industrial_part(seed: int) -> None:
     scene = apply(T_true, scene_model[scene_model[:, 2] > 0.004])
     scene += rng.normal(0, 0.0003, scene.shape)
     start = _perturb(T_true, 10.0, 0.006, rng)
-    res = icp_point_to_plane(surface, scene, start, max_distance=0.02)
+    res = icp_point_to_plane(surface, scene, start, max_distance=0.02, compiled=compiled)
     pos, rot = pose_error(res.matrix, T_true)
     assert rot < 0.5 and pos < 0.001
     assert res.rmse < 0.001
@@ -128,7 +135,8 @@ def test_bad_inputs() -> None:
         group_equivalent([np.eye(4)], np.eye(3), translation_tol=1.0)
 
 
-def test_icp_about_an_axis_turns_only_about_it() -> None:
+@pytest.mark.parametrize("compiled", _paths())
+def test_icp_about_an_axis_turns_only_about_it(compiled: bool) -> None:
     """``axis``: a start with the true tilt and a wrong yaw and position converges to the
     true pose; a start tilted 4 deg stays tilted exactly as much (the relative rotation of
     start and result keeps the axis fixed), while the free ICP takes the tilt out."""
@@ -146,20 +154,52 @@ def test_icp_about_an_axis_turns_only_about_it() -> None:
         T_true[:3, :3] @ rotation_about(down, np.radians(6.0)),
         T_true[:3, 3] + [0.004, -0.003, 0.002],
     )
-    res = icp_point_to_plane(surface, scene, yawed, max_distance=0.01, axis=down)
+    res = icp_point_to_plane(surface, scene, yawed, max_distance=0.01, axis=down, compiled=compiled)
     pos, rot = pose_error(res.matrix, T_true)
     assert pos < 0.0005 and rot < 0.3, (pos, rot)
     tilt = rotation_about(np.array([1.0, 0.0, 0.0]), np.radians(4.0))
     tilted = make_transform(T_true[:3, :3] @ tilt, T_true[:3, 3])
-    kept = icp_point_to_plane(surface, scene, tilted, max_distance=0.01, axis=down)
+    kept = icp_point_to_plane(
+        surface, scene, tilted, max_distance=0.01, axis=down, compiled=compiled
+    )
     relative = tilted[:3, :3].T @ kept.matrix[:3, :3]  # model-frame motion of the fit
     assert np.allclose(relative @ down, down, atol=1e-9)
     assert pose_error(kept.matrix, T_true)[1] > 3.9
-    free = icp_point_to_plane(surface, scene, tilted, max_distance=0.01)
+    free = icp_point_to_plane(surface, scene, tilted, max_distance=0.01, compiled=compiled)
     assert pose_error(free.matrix, T_true)[1] < 0.3
     for bad in ([0.0, 0.0, 0.0], [1.0, 0.0], [np.nan, 0.0, 1.0]):
         with pytest.raises(DataError, match="non-zero axis"):
             icp_point_to_plane(surface, scene, tilted, max_distance=0.01, axis=bad)
+
+
+def test_compiled_icp_iterations_equal_the_numpy_path() -> None:
+    """The numba normal equations give the numpy path's iterations to rounding: the same
+    iteration count and the same pose (1e-12), trimmed or not, about an axis or free, and
+    the same early exit when fewer than 6 pairs pass the gate."""
+    if _paths() == [False]:
+        pytest.skip("numba does not import here")
+    rng = np.random.default_rng(11)
+    mesh = industrial_part_mesh()
+    surface = ModelSurface.from_arrays(*sample_surface(mesh, 3000, rng=rng))
+    T_true = make_transform(random_rotation(rng), rng.uniform(-0.2, 0.2, 3))
+    scene_model, _ = sample_surface(mesh, 1500, rng=rng)
+    scene = apply(T_true, scene_model[scene_model[:, 2] > 0.004])
+    scene += rng.normal(0, 0.0003, scene.shape)
+    for k in range(6):
+        start = _perturb(T_true, 8.0, 0.004, rng)
+        kw = {
+            "max_distance": [0.02, 0.004, 1e-6][k % 3],
+            "trim": [0.9, 1.0][k % 2],
+            "axis": [None, np.array([0.0, 0.0, 1.0])][k // 3],
+        }
+        a = icp_point_to_plane(surface, scene, start, compiled=False, **kw)
+        b = icp_point_to_plane(surface, scene, start, compiled=True, **kw)
+        assert a.iterations == b.iterations and a.converged == b.converged, kw
+        np.testing.assert_allclose(b.matrix, a.matrix, atol=1e-12)
+        if np.isfinite(a.rmse):
+            assert b.rmse == pytest.approx(a.rmse, rel=1e-9)
+        else:
+            assert not np.isfinite(b.rmse)
 
 
 @pytest.mark.slow

@@ -120,6 +120,15 @@ class VerifiedHypothesis:
 
 
 _DIAG6 = np.diag_indices(6)
+#: Scene points from which ICP iterations use the compiled normal equations (numba).
+ICP_COMPILED_MIN_POINTS = 64
+
+
+def _compiled_available() -> bool:
+    from mks_sim.lowlevel import _gridknn
+
+    return _gridknn.available()
+
 # ICP stops in a two-cycle: an update as large as the last (0.7-1.4x), below CYCLE_MAX_STEP
 # (rotation radians + translation / model size: 0.06 deg), pointing back along it within
 # this cosine.
@@ -146,6 +155,7 @@ def icp_point_to_plane(
     max_iterations: int = 30,
     tolerance: float = 1e-5,
     axis: ArrayLike | None = None,
+    compiled: bool | None = None,
 ) -> IcpResult:
     """Point-to-plane ICP of a model surface to scene points (scene -> model correspondences).
 
@@ -164,6 +174,10 @@ def icp_point_to_plane(
         axis: (3,) a direction in the model frame: the pose turns only about it (4 degrees
             of freedom, the translation free: an object resting on a face with this outward
             normal turns on its support plane and never tilts).
+        compiled: the normal equations of each iteration in one numba pass
+            (:mod:`mks_sim.models._refine_kernels`; the same sums in another order) or by
+            numpy; None: compiled from :data:`ICP_COMPILED_MIN_POINTS` scene points when numba
+            imports.
 
     Returns:
         :class:`IcpResult`.
@@ -186,37 +200,46 @@ def icp_point_to_plane(
     scene_to_model = invert(T)
     size = max(surface.size, 1e-12)
     normals, offsets = surface.normals, surface.offsets
-    A = np.empty((len(scene), 6))
+    if compiled is None:
+        compiled = len(scene) >= ICP_COMPILED_MIN_POINTS and _compiled_available()
+    if compiled:
+        from mks_sim.models._refine_kernels import point_to_plane_system
+    A = np.empty((0 if compiled else len(scene), 6))
     rmse, converged, it = np.inf, False, 0
     step = np.zeros(6)  # the last update, translation scaled by the size
     for it in range(1, max_iterations + 1):  # noqa: B007 - reported
         p = scene @ scene_to_model[:3, :3].T + scene_to_model[:3, 3]  # (N, 3) model frame
         dist, j = surface.tree.query(p, distance_upper_bound=max_distance)
-        ok = dist < np.inf
-        n_ok = int(np.count_nonzero(ok))
-        if n_ok < 6:
-            break
-        if trim < 1.0 and n_ok > 10:
-            kth = int(trim * (n_ok - 1))
-            ok &= dist <= np.partition(dist[ok], kth)[kth]
-        p, jj = p[ok], j[ok]
-        n = normals[jj]
-        r = np.einsum("ij,ij->i", p, n) - offsets[jj]  # (K,) point-to-plane residuals
-        a = A[: len(p)]  # (K, 6): [p x n, n]
-        a[:, 0] = p[:, 1] * n[:, 2] - p[:, 2] * n[:, 1]
-        a[:, 1] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
-        a[:, 2] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
-        a[:, 3:] = n
-        if basis is None:
-            H = a.T @ a
-            H[_DIAG6] += 1e-9
-            x = np.linalg.solve(H, -(a.T @ r))
+        if compiled:
+            H, g, ss, used = point_to_plane_system(p, dist, j, normals, offsets, trim)
+            if used < 6:
+                break
+            rmse = float(np.sqrt(ss / used))
         else:
-            b = a @ basis
-            H = b.T @ b
-            H[_DIAG6[0][:4], _DIAG6[1][:4]] += 1e-9
-            x = basis @ np.linalg.solve(H, -(b.T @ r))
-        rmse = float(np.sqrt(np.mean(r**2)))
+            ok = dist < np.inf
+            n_ok = int(np.count_nonzero(ok))
+            if n_ok < 6:
+                break
+            if trim < 1.0 and n_ok > 10:
+                kth = int(trim * (n_ok - 1))
+                ok &= dist <= np.partition(dist[ok], kth)[kth]
+            p, jj = p[ok], j[ok]
+            n = normals[jj]
+            r = np.einsum("ij,ij->i", p, n) - offsets[jj]  # (K,) point-to-plane residuals
+            a = A[: len(p)]  # (K, 6): [p x n, n]
+            a[:, 0] = p[:, 1] * n[:, 2] - p[:, 2] * n[:, 1]
+            a[:, 1] = p[:, 2] * n[:, 0] - p[:, 0] * n[:, 2]
+            a[:, 2] = p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]
+            a[:, 3:] = n
+            H, g = a.T @ a, a.T @ r
+            rmse = float(np.sqrt(np.mean(r**2)))
+        if basis is None:
+            H[_DIAG6] += 1e-9
+            x = np.linalg.solve(H, -g)
+        else:
+            Hb = basis.T @ H @ basis
+            Hb[_DIAG6[0][:4], _DIAG6[1][:4]] += 1e-9
+            x = basis @ np.linalg.solve(Hb, -(basis.T @ g))
         scaled = np.concatenate([x[:3], x[3:] / size])
         # A two-cycle: the trimmed pairs flip between two sets and each update undoes the
         # last (measured: 1e-4 rad back and forth for 25 iterations on a scanned cube).

@@ -1,0 +1,80 @@
+"""The compiled normal equations of one point-to-plane ICP iteration
+(:func:`mks_sim.models.refine.icp_point_to_plane`).
+
+Imported only when numba is used (``icp_point_to_plane(..., compiled=False)`` is the numpy
+path the tests compare this with). One pass over the correspondences instead of a dozen
+numpy calls, each of which costs more than its arithmetic at a few hundred points.
+Module-level, ``cache=True``: the first use on a machine compiles, later processes load the
+machine code from ``__pycache__``.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+
+@nb.njit(cache=True)
+def point_to_plane_system(
+    p: np.ndarray,
+    dist: np.ndarray,
+    j: np.ndarray,
+    normals: np.ndarray,
+    offsets: np.ndarray,
+    trim: float,
+) -> tuple[np.ndarray, np.ndarray, float, int]:  # pragma: no cover
+    """``H = A^T A``, ``g = A^T r``, the sum of squared residuals and the pairs used, over
+    the pairs (``p[i]``, model sample ``j[i]``) with a finite ``dist[i]`` and, when ``trim``
+    < 1 and more than 10 are finite, ``dist[i]`` at most the ``trim`` quantile of them (the
+    numpy path's ``np.partition`` rank). Rows of A: ``[p x n, n]``; residual ``p . n -
+    offset``. Fewer than 6 finite pairs: zeros and the count."""
+    n = len(p)
+    h = np.zeros((6, 6))
+    g = np.zeros(6)
+    n_ok = 0
+    for i in range(n):
+        if dist[i] < np.inf:
+            n_ok += 1
+    if n_ok < 6:
+        return h, g, 0.0, n_ok
+    thr = np.inf
+    if trim < 1.0 and n_ok > 10:
+        d_ok = np.empty(n_ok)
+        k = 0
+        for i in range(n):
+            if dist[i] < np.inf:
+                d_ok[k] = dist[i]
+                k += 1
+        kth = int(trim * (n_ok - 1))
+        thr = np.partition(d_ok, kth)[kth]
+    a = np.empty(6)
+    ss = 0.0
+    used = 0
+    for i in range(n):
+        d = dist[i]
+        if not (d < np.inf and d <= thr):
+            continue
+        q = j[i]
+        nx = normals[q, 0]
+        ny = normals[q, 1]
+        nz = normals[q, 2]
+        px = p[i, 0]
+        py = p[i, 1]
+        pz = p[i, 2]
+        r = px * nx + py * ny + pz * nz - offsets[q]
+        a[0] = py * nz - pz * ny
+        a[1] = pz * nx - px * nz
+        a[2] = px * ny - py * nx
+        a[3] = nx
+        a[4] = ny
+        a[5] = nz
+        for u in range(6):
+            g[u] += a[u] * r
+            for v in range(u, 6):
+                h[u, v] += a[u] * a[v]
+        ss += r * r
+        used += 1
+    for u in range(6):
+        for v in range(u):
+            h[u, v] = h[v, u]
+    return h, g, ss, used
