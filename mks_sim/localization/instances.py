@@ -73,6 +73,14 @@ FLIPS_CHECKED = 3
 #: off and turned 180 deg, score 0.58-0.62, explaining parts of two others); the right ones
 #: of tuning bin 15 scored 0.72-1.0.
 MIN_FLIP_SCORE = 0.7
+#: The turns that compete with an accepted pose seen through also slide along the model's box
+#: axes, every this x the size (:func:`_turned_over`'s ``step``: 79 turns for the part, 5 mm
+#: steps). Tuning bin 55: a part 41 % visible was reported turned 180 deg about its height
+#: axis and 19.8 mm along its length (616 points, 5 seen through it), which the turns through
+#: the box's centre and face centres do not reach. Fresh tuning bins 40-59: instances >= 30 %
+#: visible found 92 -> 93 of 103, false positives 2 -> 1; bins 0-19: see docs/bin.md. Slid
+#: turns for a segment where nothing passed added wrong instances (bin 53: 6 -> 1 found).
+SLIDE_STEP = 0.04
 
 
 @dataclass(frozen=True, eq=False)
@@ -193,6 +201,7 @@ def localize_all(
     radius = float(np.max(np.linalg.norm(surf_pts - centre, axis=1)))
     twins = near_symmetries(surf_pts, model.symmetries())
     flips = _turned_over(surf_pts)
+    slides = _turned_over(surf_pts, step=SLIDE_STEP * size)
     flip_samples = surf_pts[:: max(1, len(surf_pts) // 300)]
     d = inlier_distance
     if d is None:
@@ -269,12 +278,12 @@ def localize_all(
                     best = better(PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3]), best)
                 return best
 
-            def turned_over(pose: FloatArray) -> FloatArray:
-                """The :data:`FLIPS_CHECKED` turns of ``pose`` (:func:`_turned_over`) that
-                land the most model samples on free points (one batch query)."""
+            def turned_over(pose: FloatArray, turns: FloatArray = flips) -> FloatArray:
+                """The :data:`FLIPS_CHECKED` ``turns`` of ``pose`` (:func:`_turned_over`)
+                that land the most model samples on free points (one batch query)."""
                 if not free_tree:
                     free_tree.append(cKDTree(cloud[free]))
-                turned = pose @ flips
+                turned = pose @ turns
                 n_near = batch_explained(flip_samples, turned, free_tree[0], 2 * d)
                 return turned[np.argsort(-n_near, kind="stable")[:FLIPS_CHECKED]]
 
@@ -305,8 +314,9 @@ def localize_all(
                 # explained 1135 points and saw 8 through itself, the turned-over truth
                 # 1492 and none): its best turns compete. Turning every accepted pose
                 # cost instances (tuning bins 20-39: 98 -> 95 of 103 found: a turn
-                # explaining a neighbour's points as well took them)
-                best = better_of(turned_over(best.matrix), best)
+                # explaining a neighbour's points as well took them). The turns slide too
+                # (:data:`SLIDE_STEP`)
+                best = better_of(turned_over(best.matrix, slides), best)
             if best is None:
                 # nothing passed: the first candidate turned over (a part lying upside down
                 # shows its flat bottom, which the upright pose puts its own bottom on:
@@ -379,11 +389,14 @@ def _overlap(A: FloatArray, B: FloatArray, surface: Any, d: float) -> float:
     return float(np.mean((dist <= 2 * d) | behind))
 
 
-def _turned_over(surf_pts: FloatArray) -> FloatArray:
-    """(15, 4, 4) half turns of a model (model frame) about each axis of its samples'
+def _turned_over(surf_pts: FloatArray, step: float | None = None) -> FloatArray:
+    """(K, 4, 4) half turns of a model (model frame) about each axis of its samples'
     bounding box, through the box's centre and through the centres of the four faces
-    parallel to the axis: the poses of an object turned over onto another face, the face it
-    was seen by kept in place."""
+    parallel to the axis (K = 15): the poses of an object turned over onto another face, the
+    face it was seen by kept in place. ``step``: also through the points every ``step``
+    (about) between the centre and those face centres: the turned poses slid along the
+    box's axes by twice that (an elongated part turned 180 degrees fits most of its own
+    surface 20 mm along its length)."""
     lo, hi = surf_pts.min(axis=0), surf_pts.max(axis=0)
     mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     out = []
@@ -393,10 +406,12 @@ def _turned_over(surf_pts: FloatArray) -> FloatArray:
         pivots = [mid]
         for j in range(3):
             if j != k:
-                for sign in (-1.0, 1.0):
-                    p = mid.copy()
-                    p[j] += sign * half[j]
-                    pivots.append(p)
+                n = max(1, int(round(half[j] / step))) if step else 1
+                for off in np.linspace(-half[j], half[j], 2 * n + 1):
+                    if off != 0.0:
+                        p = mid.copy()
+                        p[j] += off
+                        pivots.append(p)
         for p in pivots:
             S = np.eye(4)
             S[:3, :3] = R
