@@ -378,10 +378,29 @@ def sphere_centre_hough(
 _DIAG3 = np.diag_indices(3)
 
 
+#: Shell points from which the sphere fit's iterations run compiled (numba).
+SPHERE_COMPILED_MIN_POINTS = 32
+
+
 def fit_fixed_sphere(
-    objects: FloatArray, tree: cKDTree, c0: FloatArray, radius: float, d: float
+    objects: FloatArray,
+    tree: cKDTree,
+    c0: FloatArray,
+    radius: float,
+    d: float,
+    *,
+    compiled: bool | None = None,
 ) -> tuple[FloatArray, float, int] | None:
-    """Centre of a sphere of known radius fitted robustly to the points near ``c0``'s shell."""
+    """Centre of a sphere of known radius fitted robustly to the points near ``c0``'s shell.
+
+    ``compiled``: the Gauss-Newton iterations of each shell in one numba call
+    (:mod:`mks_sim.localization._hypotheses_kernels`, the same arithmetic summed in another
+    order) or in numpy; None: compiled from :data:`SPHERE_COMPILED_MIN_POINTS` shell points
+    when numba imports."""
+    if compiled is None:
+        from mks_sim.lowlevel import _gridknn
+
+        compiled = _gridknn.available()
     c = np.asarray(c0, dtype=np.float64).copy()
     band = max(3.0 * d, 0.15 * radius)
     f_scale = max(d / 3.0, 1e-4)
@@ -398,19 +417,24 @@ def fit_fixed_sphere(
         start = c.copy()
         # Gauss-Newton with soft-L1 (IRLS) weights on r_i = |p_i - c| - R; a micrometre step
         # ends it (fits to other surfaces oscillate below that and are rejected later)
-        for _ in range(20):
-            diff = pts - c
-            dist = np.maximum(np.sqrt(np.einsum("ij,ij->i", diff, diff)), 1e-12)
-            u = diff / dist[:, None]
-            r = dist - radius
-            w = 1.0 / np.sqrt(1.0 + (r / f_scale) ** 2)
-            wu = u * w[:, None]
-            H = wu.T @ u
-            H[_DIAG3] += 1e-12
-            delta = np.linalg.solve(H, wu.T @ r)
-            c = c + delta
-            if float(np.sqrt(delta @ delta)) < 1e-6:
-                break
+        if compiled and len(pts) >= SPHERE_COMPILED_MIN_POINTS:
+            from mks_sim.localization._hypotheses_kernels import sphere_gauss_newton
+
+            c = sphere_gauss_newton(np.ascontiguousarray(pts), c, radius, f_scale, 20)
+        else:
+            for _ in range(20):
+                diff = pts - c
+                dist = np.maximum(np.sqrt(np.einsum("ij,ij->i", diff, diff)), 1e-12)
+                u = diff / dist[:, None]
+                r = dist - radius
+                w = 1.0 / np.sqrt(1.0 + (r / f_scale) ** 2)
+                wu = u * w[:, None]
+                H = wu.T @ u
+                H[_DIAG3] += 1e-12
+                delta = np.linalg.solve(H, wu.T @ r)
+                c = c + delta
+                if float(np.sqrt(delta @ delta)) < 1e-6:
+                    break
         step = float(np.linalg.norm(c - start))
         band = max(1.5 * d, 0.5 * band)
         if step < 1e-5:
