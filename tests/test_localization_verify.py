@@ -291,3 +291,20 @@ def test_fixed_radius_sphere_fit_recovers_the_centre(compiled):
         assert np.linalg.norm(other[0] - c) < 1e-6
     # a seed whose shell holds no points: no fit
     assert fit_fixed_sphere(cloud, tree, centre + 0.2, radius, 0.002, compiled=compiled) is None
+
+
+def test_corner_correspondences_take_the_first_corner_per_detected_vertex():
+    """Brute force over random rows: each detected vertex hit (index < n) paired with the
+    first model corner that landed on it, in detected-vertex order; misses (n) dropped."""
+    from mks_sim.localization.hypotheses import _corner_correspondences
+
+    rng = np.random.default_rng(2)
+    n = 5
+    j = rng.integers(0, n + 1, size=(40, 8))
+    j[3] = n  # a row of misses only
+    got = _corner_correspondences(j, n)
+    assert len(got) == len(j)
+    for row, pairs in zip(j, got, strict=True):
+        want = sorted((int(d), int(np.flatnonzero(row == d)[0])) for d in set(row.tolist()) if d < n)
+        assert [tuple(p) for p in pairs.tolist()] == want
+        assert pairs.dtype == np.int64 and pairs.shape[1] == 2

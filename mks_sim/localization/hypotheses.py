@@ -511,10 +511,14 @@ def vertex_hypotheses(
         return []
     # Rank by votes; break ties among the first ``keep`` by a quick inlier fraction.
     sub = scene_points[:: max(1, len(scene_points) // 100)]
-    by_votes = [
-        (v, T, _corner_correspondences(c, len(detected)) if c.ndim == 1 else c)
-        for v, T, c in sorted(out, key=lambda o: -o[0])[:keep]
-    ]
+    top = sorted(out, key=lambda o: -o[0])[:keep]
+    rows = [k for k, o in enumerate(top) if o[2].ndim == 1]
+    corr = dict(
+        zip(rows, _corner_correspondences(np.stack([top[k][2] for k in rows]), len(detected)))
+        if rows
+        else {}
+    )
+    by_votes = [(v, T, corr.get(k, c)) for k, (v, T, c) in enumerate(top)]
     mats = np.stack([o[1] for o in by_votes])
     # one quick score per distinct placement (poses equal up to a model symmetry share it)
     first, inverse = _distinct_placements(mats, model.symmetries(), vote_distance / 2)
@@ -558,12 +562,18 @@ _GENERIC_ROTATION = np.array(
 )
 
 
-def _corner_correspondences(j: NDArray[np.intp], n_detected: int) -> NDArray[np.int64]:
-    """(C, 2) (detected vertex, model corner) pairs from the detected vertex each model corner
-    landed on (``n_detected``: none), the first corner per detected vertex."""
-    hit = np.flatnonzero(j < n_detected)
-    corr = np.column_stack([j[hit], hit]).astype(np.int64)
-    return corr[np.unique(corr[:, 0], return_index=True)[1]]
+def _corner_correspondences(j: NDArray[np.intp], n_detected: int) -> list[NDArray[np.int64]]:
+    """Per row of ``j`` (K, V) -- the detected vertex each model corner landed on
+    (``n_detected``: none) -- the (C, 2) (detected vertex, model corner) pairs, the first
+    corner per detected vertex, ordered by detected vertex (all rows in a few array calls)."""
+    n_rows, n_corners = j.shape
+    first = np.full((n_rows, n_detected + 1), n_corners, dtype=np.int64)
+    rows = np.arange(n_rows)
+    for v in range(n_corners - 1, -1, -1):  # the last write, the first corner, wins
+        first[rows, np.minimum(j[:, v], n_detected)] = v
+    r, dv = np.nonzero(first[:, :n_detected] < n_corners)
+    pairs = np.column_stack([dv, first[r, dv]]).astype(np.int64)
+    return np.split(pairs, np.cumsum(np.bincount(r, minlength=n_rows))[:-1])
 
 
 def _frame(a: FloatArray, b: FloatArray) -> FloatArray:
