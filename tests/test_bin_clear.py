@@ -644,3 +644,86 @@ def test_an_instance_with_a_grasp_clear_of_the_neighbours_goes_first():
     assert chosen == (0, ["0-fixed"])
     # without ``clear``: as before
     assert binmod._choose_grasp(grasps, [0, 1], [False, False])[0] == (0, ["0-fixed"])
+
+
+# Tuning bin 5, the state before its third pick (captured at e5bdbbd; arm at home, hand open;
+# velocities zeroed): the part, upside down, pinched across 20 mm by finger 1 and finger 3
+# (finger 2 closed on nothing), its centre of mass 15 mm above and 21 mm beside the pads.
+_BIN5_QPOS = (
+    -1.23354088, 3.08824114, 1.07949329, 3.5171934, -1.33729048, 3.85134893, 0.149602746,
+    0.149603244, 0.149602824, -0.0232414977, 0.0406172879, 0.749994202, 0.815268686,
+    8.91095544e-06, -5.90692606e-05, 0.579082866, -0.326048136, 0.184668488, 0.777736817,
+    -0.0451454724, 0.680271558, 0.730536932, 0.0388366401, -0.061539671, -0.0651499122,
+    0.77789374, 0.00470246185, 0.994950371, -0.0797140498, 0.0608055591, -0.19677717,
+    0.219737153, 0.789537422, 0.920995887, -0.167540624, -0.327554412, 0.128081311,
+    -0.126909982, 0.181892267, 0.819443907, -0.351623874, 0.10517215, 0.881220245,
+    -0.29790997, -0.316162228, 0.198670666, 0.814974527, 0.62081063, 0.31192329,
+    -0.689046209, -0.206187645,
+)  # fmt: skip
+_BIN5_ESTIMATE = (
+    (0.979856689, -0.159621633, 0.120007515, -0.0615711303),
+    (-0.158468627, -0.987178237, -0.0191526225, -0.0651353688),
+    (0.12152598, -0.000250600849, -0.992588219, 0.77788986),
+    (0.0, 0.0, 0.0, 1.0),
+)
+_BIN5_GRASP = dict(
+    pinch_world=(-0.0952412993, -0.0385122766, 0.762938926),
+    yaw_rad=-0.083678961,
+    width_m=0.0203992787,
+    contacts_world=(
+        (-0.10540525, -0.0376597771, 0.755714967),
+        (-0.0850773489, -0.0393647761, 0.754162884),
+    ),
+    normals_world=(
+        (-0.979856689, 0.158468627, -0.12152598),
+        (0.979856689, -0.158468627, 0.12152598),
+    ),
+    antipodal=0.989673149,
+    com_distance_m=0.0282555627,
+    cost=0.0300184664,
+)
+
+
+def _replay_bin5_pick():
+    """The captured pick replayed: (believed held, failure, how far the part rose (m), ground
+    truth, evaluation only)."""
+    import mujoco
+    import numpy as np
+
+    from mks_sim.devices import make_devices
+    from mks_sim.sim import truth
+    from mks_sim.tasks.bin import BinPicker, _nearest_body, _pick, bin_world
+    from mks_sim.tasks.episode import TOUCH_THRESHOLD_N
+    from mks_sim.tasks.grasp import GraspCandidate
+
+    world = bin_world(5)
+    with make_devices(world.model, world.data, np.random.default_rng(5), {}) as devices:
+        robot = BinPicker(world, devices, active=False)
+        world.data.qpos[:] = _BIN5_QPOS
+        world.data.qvel[:] = 0.0
+        mujoco.mj_forward(world.model, world.data)
+        robot.ctl.q_target = robot.ctl.arm_qpos()
+        body = _nearest_body(world, robot.bodies, np.asarray(_BIN5_ESTIMATE))
+        assert body is not None
+        z0 = truth.object_to_world(world, body)[2, 3]
+        cand = GraspCandidate(**_BIN5_GRASP)
+        ok, failure, _, _ = _pick(
+            robot.ctl, [cand], robot.action, 0, None, robot.table_z, TOUCH_THRESHOLD_N
+        )
+        return ok, failure, truth.object_to_world(world, body)[2, 3] - z0
+
+
+@pytest.mark.slow
+def test_a_part_hanging_on_two_pads_is_lifted_slowly_and_stays(monkeypatch):
+    """The replayed pick of tuning bin 5: lifted at full speed from the table (the old lift)
+    the part turned about its two pads and fell (``slipped``, it never rose); with the first
+    centimetres slow (:data:`LIFT_SLOW_M`) it rises with the hand, out of the bin."""
+    import mks_sim.tasks.bin as bin_mod
+
+    ok, failure, rise = _replay_bin5_pick()
+    assert ok and failure == "", (failure, rise)
+    assert rise > bin_mod.BIN_WALL_M + 0.05, rise  # above the bin's walls, in the hand
+    monkeypatch.setattr(bin_mod, "LIFT_SLOW_M", 0.0)  # the old lift
+    ok, failure, rise = _replay_bin5_pick()
+    assert not ok and failure == "slipped", (failure, rise)
+    assert rise < 0.01, rise

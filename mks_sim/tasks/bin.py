@@ -1189,6 +1189,15 @@ def _to_try(cands: Sequence[Any]) -> list[Any]:
     return _diverse(top, TRY_TOP_DOWN) + _diverse(tilted, TRY_TILTED)
 
 
+#: The lift's first :data:`LIFT_SLOW_M` go at :data:`LIFT_SLOW_SPACING_M` per waypoint (3
+#: control periods each: ~3 cm/s instead of ~17): as the part leaves the table it hangs on
+#: the pads alone, often two of them (a hinge), and the fast start turned it out of the
+#: grasp (tuning bin 5, the state before its slip replayed: fast, turned 43 deg and fell;
+#: slow, turned 4 deg and carried; docs/bin.md "Slips").
+LIFT_SLOW_M = 0.03
+LIFT_SLOW_SPACING_M = 0.002
+
+
 def _pick(
     ctl: Any,
     cands: Sequence[Any],
@@ -1239,6 +1248,10 @@ def _pick(
     pinch_to_world[:3, :3], pinch_to_world[:3, 3] = ctl.pinch_rotation(), ctl.pinch_pos()
     up = np.asarray(plan.grasp_point_world, dtype=float).copy()
     up[2] = table_z + CLEARANCE_ABOVE_M
+    # the first centimetres slowly: the part leaves the table's support (docs/bin.md "Slips")
+    first = ctl.pinch_pos()
+    first[2] = min(first[2] + LIFT_SLOW_M, up[2])
+    ctl.move_to(first, plan.yaw_rad, spacing_m=LIFT_SLOW_SPACING_M, rotation=rot)
     ctl.move_to(up, plan.yaw_rad, spacing_m=0.01, rotation=rot)
     if not _held(ctl):
         return False, "slipped", None, tried[:-1]
