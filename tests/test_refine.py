@@ -37,6 +37,20 @@ def _perturb(T: np.ndarray, deg: float, shift: float, rng: np.random.Generator) 
     return make_transform(dR @ T[:3, :3], T[:3, 3] + shift * d / np.linalg.norm(d))
 
 
+def _part_scan(
+    rng: np.random.Generator, n_model: int, n_scene: int
+) -> tuple[ModelSurface, np.ndarray, np.ndarray]:
+    """The industrial part's surface, a random true pose and a one-sided noisy scan of it
+    (what faces +z in the model frame, placed)."""
+    mesh = industrial_part_mesh()
+    surface = ModelSurface.from_arrays(*sample_surface(mesh, n_model, rng=rng))
+    T_true = make_transform(random_rotation(rng), rng.uniform(-0.2, 0.2, 3))
+    scene_model, _ = sample_surface(mesh, n_scene, rng=rng)
+    scene = apply(T_true, scene_model[scene_model[:, 2] > 0.004])
+    scene += rng.normal(0, 0.0003, scene.shape)
+    return surface, T_true, scene
+
+
 def _paths() -> list[bool]:
     from mks_sim.models.refine import _compiled_available
 
@@ -47,13 +61,7 @@ def _paths() -> list[bool]:
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_icp_converges_to_ground_truth_on_industrial_part(seed: int, compiled: bool) -> None:
     rng = np.random.default_rng(seed)
-    mesh = industrial_part_mesh()
-    surface = ModelSurface.from_arrays(*sample_surface(mesh, 4000, rng=rng))
-    T_true = make_transform(random_rotation(rng), rng.uniform(-0.2, 0.2, 3))
-    scene_model, _ = sample_surface(mesh, 2000, rng=rng)
-    # one-sided: keep what faces +z in the model frame, then place it
-    scene = apply(T_true, scene_model[scene_model[:, 2] > 0.004])
-    scene += rng.normal(0, 0.0003, scene.shape)
+    surface, T_true, scene = _part_scan(rng, 4000, 2000)
     start = _perturb(T_true, 10.0, 0.006, rng)
     res = icp_point_to_plane(surface, scene, start, max_distance=0.02, compiled=compiled)
     pos, rot = pose_error(res.matrix, T_true)
@@ -178,13 +186,8 @@ def test_compiled_icp_iterations_equal_the_numpy_path() -> None:
     the same early exit when fewer than 6 pairs pass the gate."""
     if _paths() == [False]:
         pytest.skip("numba does not import here")
-    rng = np.random.default_rng(11)
-    mesh = industrial_part_mesh()
-    surface = ModelSurface.from_arrays(*sample_surface(mesh, 3000, rng=rng))
-    T_true = make_transform(random_rotation(rng), rng.uniform(-0.2, 0.2, 3))
-    scene_model, _ = sample_surface(mesh, 1500, rng=rng)
-    scene = apply(T_true, scene_model[scene_model[:, 2] > 0.004])
-    scene += rng.normal(0, 0.0003, scene.shape)
+    surface, T_true, scene = _part_scan(np.random.default_rng(11), 3000, 1500)
+    rng = np.random.default_rng(12)
     for k in range(6):
         start = _perturb(T_true, 8.0, 0.004, rng)
         kw = {

@@ -60,25 +60,22 @@ def edge_triangles(cons: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     """(T, 3) triples ``a[e] < b[e] < k`` with ``cons[a[e], k]`` and ``cons[b[e], k]``, edge by
     edge, ``k`` ascending."""
     c = cons.shape[0]
-    n = 0
-    for e in range(len(a)):
-        ra = cons[a[e]]
-        rb = cons[b[e]]
-        for k in range(b[e] + 1, c):
-            if ra[k] and rb[k]:
-                n += 1
-    out = np.empty((n, 3), dtype=np.int64)
+    out = np.empty((max(16, len(a)), 3), dtype=np.int64)
     t = 0
     for e in range(len(a)):
         ra = cons[a[e]]
         rb = cons[b[e]]
         for k in range(b[e] + 1, c):
             if ra[k] and rb[k]:
+                if t == len(out):  # full: twice the room
+                    grown = np.empty((2 * len(out), 3), dtype=np.int64)
+                    grown[:t] = out
+                    out = grown
                 out[t, 0] = a[e]
                 out[t, 1] = b[e]
                 out[t, 2] = k
                 t += 1
-    return out
+    return out[:t].copy()
 
 
 @nb.njit(cache=True)
