@@ -32,7 +32,7 @@ from mks_sim.geometry.transforms import make_transform, rotation_from_covariance
 from mks_sim.lowlevel.grouping import Vertexes
 from mks_sim.lowlevel.regions import Plane
 from mks_sim.models.pose import PoseHypothesis
-from mks_sim.models.refine import batch_inlier_fractions
+from mks_sim.models.refine import _compiled_available, batch_inlier_fractions
 
 __all__ = [
     "fit_fixed_sphere",
@@ -398,9 +398,7 @@ def fit_fixed_sphere(
     order) or in numpy; None: compiled from :data:`SPHERE_COMPILED_MIN_POINTS` shell points
     when numba imports."""
     if compiled is None:
-        from mks_sim.lowlevel import _gridknn
-
-        compiled = _gridknn.available()
+        compiled = _compiled_available()
     c = np.asarray(c0, dtype=np.float64).copy()
     band = max(3.0 * d, 0.15 * radius)
     f_scale = max(d / 3.0, 1e-4)
@@ -513,11 +511,10 @@ def vertex_hypotheses(
     sub = scene_points[:: max(1, len(scene_points) // 100)]
     top = sorted(out, key=lambda o: -o[0])[:keep]
     rows = [k for k, o in enumerate(top) if o[2].ndim == 1]
-    corr = dict(
-        zip(rows, _corner_correspondences(np.stack([top[k][2] for k in rows]), len(detected)))
-        if rows
-        else {}
-    )
+    corr: dict[int, NDArray[np.int64]] = {}
+    if rows:
+        found = _corner_correspondences(np.stack([top[k][2] for k in rows]), len(detected))
+        corr = dict(zip(rows, found, strict=True))
     by_votes = [(v, T, corr.get(k, c)) for k, (v, T, c) in enumerate(top)]
     mats = np.stack([o[1] for o in by_votes])
     # one quick score per distinct placement (poses equal up to a model symmetry share it)

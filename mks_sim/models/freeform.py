@@ -67,6 +67,7 @@ from mks_sim.models.pose import PoseHypothesis
 from mks_sim.models.refine import (
     ModelSurface,
     VerifiedHypothesis,
+    _compiled_available,
     group_equivalent,
     merge_verified,
     verify_hypotheses,
@@ -771,6 +772,8 @@ class FreeformModel:
         # as ref[inv == u], without a pass over all votes per cell)
         by_cell = np.argsort(inv, kind="stable")
         cell_start = np.concatenate([[0], np.cumsum(counts)])
+        if compiled:
+            from mks_sim.models._freeform_kernels import rotations_close
         for u in order:
             if len(used) >= cfg.max_peaks:
                 break
@@ -789,8 +792,6 @@ class FreeformModel:
             # 5-20x slower here; the flattened form is ~1.5x faster than "aij,bij->ab")
             r9 = r.reshape(len(r), 9)
             if compiled:
-                from mks_sim.models._freeform_kernels import rotations_close
-
                 close = rotations_close(np.ascontiguousarray(r9), float(cos_thr))
             else:
                 cos = (np.einsum("ak,bk->ab", r9, r9) - 1.0) / 2.0
@@ -856,12 +857,6 @@ def _first_distinct(
 #: Pairings from which the consistency and the triangles use the compiled kernels
 #: (:mod:`mks_sim.models._freeform_kernels`) when numba imports.
 _COMPILED_MIN_PAIRS = 256
-
-
-def _compiled_available() -> bool:
-    from mks_sim.lowlevel import _gridknn
-
-    return _gridknn.available()
 
 
 def _consistent(

@@ -125,6 +125,8 @@ ICP_COMPILED_MIN_POINTS = 64
 
 
 def _compiled_available() -> bool:
+    """The compiled kernels of the models and the localization can run (numba imports and
+    can cache here: :func:`mks_sim.lowlevel._gridknn.available`)."""
     from mks_sim.lowlevel import _gridknn
 
     return _gridknn.available()
