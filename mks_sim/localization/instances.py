@@ -15,7 +15,10 @@ explained points removed (issue 13):
    :data:`SAME_OVERLAP`, and most of its explained points not claimed
    already -- is accepted and its points (within 2 inlier distances of the whole posed
    surface) are claimed;
-4. passes repeat until one accepts nothing, ``max_instances`` are found or too few points
+4. a segment none of whose candidates passes votes again with the object's alternate model
+   (its free-form model: point-pair features need no visible corner or face pair, which a
+   pile hides), then, if nothing passes still, is split into clusters that vote on their own;
+5. passes repeat until one accepts nothing, ``max_instances`` are found or too few points
    are left.
 
 No instance is reported twice (the two tests of step 3). The instance score is the coverage
@@ -81,6 +84,9 @@ MIN_FLIP_SCORE = 0.7
 #: visible found 92 -> 93 of 103, false positives 2 -> 1; bins 0-19: see docs/bin.md. Slid
 #: turns for a segment where nothing passed added wrong instances (bin 53: 6 -> 1 found).
 SLIDE_STEP = 0.04
+#: A segment with at least this many unclaimed points, none of whose candidates passed,
+#: votes with the object's alternate model (its free-form model) before it is split.
+ALTERNATE_MIN_POINTS = 60
 
 
 @dataclass(frozen=True, eq=False)
@@ -113,7 +119,8 @@ class Instances:
         passes: voting passes run.
         table: the table plane used (None: none).
         inlier_distance: the match distance (points' units).
-        timing: seconds (``passes``, ``verification``, ``total``).
+        timing: seconds (``passes``, ``verification``, of it ``alternate``: the alternate
+            model's votes, ``total``).
     """
 
     instances: tuple[Instance, ...]
@@ -147,6 +154,7 @@ def localize_all(
     max_split: int = 6,
     rng: np.random.Generator | None = None,
     prior: Sequence[ArrayLike] = (),
+    alternate: Any = None,
 ) -> Instances:
     """Every instance of ``model`` in ``points`` (module docstring).
 
@@ -173,6 +181,10 @@ def localize_all(
             and kept when it passes. Re-voting a fused cloud from scratch lost instances the
             first view had found (another view changes the segments); a prior that the new
             points show to be wrong (points seen through it) fails the check and is dropped.
+        alternate: a second model of the same object in the same frame with a
+            ``hypotheses(points)`` method (the object's free-form model,
+            :func:`instance_alternate`): a segment none of whose candidates passes votes
+            with it on its unclaimed points before it is split (:data:`ALTERNATE_MIN_POINTS`).
 
     Returns:
         :class:`Instances`.
@@ -215,7 +227,7 @@ def localize_all(
     spacing = float(np.median(tree.query(cloud[above][:5000], k=2)[0][:, 1])) if above.any() else d
     model_area = len(surf_pts) * (surface.spacing / 0.47) ** 2
     expected = VISIBLE_FRACTION * model_area / max(spacing, 1e-12) ** 2
-    timing = {"passes": 0.0, "verification": 0.0}
+    timing = {"passes": 0.0, "verification": 0.0, "alternate": 0.0}
     found: list[Instance] = []
     passes = 0
     t = time.perf_counter()
@@ -337,12 +349,22 @@ def localize_all(
             if accept(by_segment.get(si, [])):
                 accepted += 1
                 continue
+            members = free[np.asarray(seg.indices, dtype=np.intp)]
+            members = members[~claimed[members]]
+            if alternate is not None and len(members) >= ALTERNATE_MIN_POINTS:
+                # the other model kind votes on the segment: point-pair features need no
+                # corner or face pair, which a pile hides (tuning bin 40: three parts
+                # 34-52 % visible whose polyhedral candidates all landed 17-22 mm off)
+                t_alt = time.perf_counter()
+                alt = list(alternate.hypotheses(cloud[members]))
+                timing["alternate"] += time.perf_counter() - t_alt
+                if accept(alt):
+                    accepted += 1
+                    continue
             # Touching instances share one segment and its candidates fit none of them
             # (ICP is pulled by the neighbours): split it into about as many spatial clusters
             # as instances it could hold (one view shows ~2 x VISIBLE_FRACTION of a part)
             # and vote in each.
-            members = free[np.asarray(seg.indices, dtype=np.intp)]
-            members = members[~claimed[members]]
             k = int(np.clip(round(len(members) / (2.0 * expected)), 2, max_split))
             if len(members) < 2 * 60:
                 continue
@@ -542,6 +564,7 @@ class SensedInstances:
 
 
 _MODELS: dict[tuple[str, tuple[str, ...]], Any] = {}
+_ALTERNATES: dict[tuple[str, tuple[str, ...]], Any] = {}
 
 
 def instance_model(object_name: str, models: tuple[str, ...] = ()) -> Any:
@@ -554,6 +577,25 @@ def instance_model(object_name: str, models: tuple[str, ...] = ()) -> Any:
         obj = load_object(object_name, models=models)
         _MODELS[key] = PolyhedralModel.from_mesh(obj.mesh, obj.name)
     return _MODELS[key]
+
+
+def instance_alternate(object_name: str, models: tuple[str, ...] = ()) -> Any:
+    """The object's free-form model when it lists the ``freeform`` kind (the database entry
+    it names, else one built from its mesh; once per object), else None: the alternate
+    candidates of :func:`localize_all`."""
+    from mks_sim.localization.model import db_for, default_db
+    from mks_sim.localization.workstation import freeform_model
+    from mks_sim.models.objects import load_object
+
+    key = (object_name, models)
+    if key not in _ALTERNATES:
+        spec = load_object(object_name, models=models)
+        alt = None
+        if "freeform" in spec.kinds:
+            db = default_db() if not models else db_for(tuple(str(m) for m in models))
+            alt = freeform_model(spec, db)[1]
+        _ALTERNATES[key] = alt
+    return _ALTERNATES[key]
 
 
 def localize_instances(
@@ -619,7 +661,13 @@ def localize_instances(
         raise SensorFailure(sensor, f"expected >= 50 points in the region, got {len(pts)}")
     table, _, _ = find_table(pts, rng, spacing=0.0, noise=0.0, near_z=table_z_m(graph))
     result = localize_all(
-        model, pts, table=table, rng=rng, max_instances=max_instances, prior=prior
+        model,
+        pts,
+        table=table,
+        rng=rng,
+        max_instances=max_instances,
+        prior=prior,
+        alternate=instance_alternate(object_name, models),
     )
     total = time.perf_counter() - t0
     return SensedInstances(

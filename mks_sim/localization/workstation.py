@@ -70,6 +70,7 @@ __all__ = [
     "REPRESENTATION_SENSOR",
     "WorkstationLocalization",
     "find_table",
+    "freeform_model",
     "localize",
     "localize_freeform",
     "localize_object",
@@ -211,7 +212,7 @@ def _resolve_model(
             entry = SphereModel(f"{spec.name}_sphere", r, 0.004)
         return str(getattr(entry, "name", spec.name)), entry, sensor, "database", entry
     if _is_freeform(spec):
-        return (*_freeform_model(spec, db), spec.sensor, "database", None)
+        return (*freeform_model(spec, db), spec.sensor, "database", None)
     entry = None
     if "rotinv" in spec.models:
         try:
@@ -238,7 +239,7 @@ def _is_freeform(spec: Any) -> bool:
     return bool(mesh_kind(spec.mesh) == "freeform")
 
 
-def _freeform_model(spec: Any, db: ModelDatabase) -> tuple[str, Any]:
+def freeform_model(spec: Any, db: ModelDatabase) -> tuple[str, Any]:
     """(name, the free-form model): the database entry the object names (its tables, built
     by ``objects add``), else one built from its mesh once per mesh."""
     if "freeform" in spec.models:
