@@ -230,6 +230,16 @@ FINGERTIP_DROP_M = 0.015
 # The object's own surface closer than this to an open fingertip's axis blocks the descent
 # (the fingertip's half thickness plus a little).
 SELF_CLEARANCE_M = 0.008
+# A top-down hand's palm (measured on the meshes of mks_sim.sim.robot, pinch-site frame: x the
+# closing axis, y across): its lowest point PALM_ABOVE_M above the pinch site, over PALM_XY_M.
+# A part standing on end (100 mm tall) pinched low had its top under the palm: the descent
+# stopped 6-14 mm short, three candidates in a row (tuning bin 1, docs/bin.md). The knuckles
+# (27-38 mm above the pinch site just inside the fingertips) are not modelled: a box for them
+# dropped grasps that held (tuning bins 7, 8: 5 and 4 parts -> 4 and 2).
+PALM_ABOVE_M = 0.072
+PALM_XY_M = np.array([[-0.054, -0.062], [0.053, 0.032]])  # (min, max) x, y
+# The object's own surface at most this close below the palm.
+PALM_CLEARANCE_M = 0.004
 # Widths the pads close on: the closed hand's pads are 4 mm apart, and a 10 mm wall with a
 # 25 mm face (the L-bracket's) is held (tuning seeds 1000-1011: 9/12 at 8 mm, 0/12 at the
 # former 20 mm, chosen when the part's 13 mm boss never gave contact on both pads, see
@@ -310,6 +320,21 @@ def _tip_hits(
     low = points[pt, 2] > pinch_z[cand] - FINGERTIP_DROP_M
     key = np.unique(cand[low] * len(points) + pt[low])  # each point once per candidate
     return np.bincount(key // len(points), minlength=K)
+
+
+def _under_palm(pinch: np.ndarray, yaw: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(K,) number of ``points`` (M, 3) within :data:`PALM_CLEARANCE_M` below (or above) a
+    top-down hand's palm at pinch points ``pinch`` (K, 3), yaws ``yaw`` (K,)."""
+    K = len(pinch)
+    if len(points) == 0 or K == 0:
+        return np.zeros(K, dtype=int)
+    rel = points[None, :, :] - pinch[:, None, :]  # (K, M, 3)
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    x = rel[:, :, 0] * c + rel[:, :, 1] * s  # along the closing axis
+    y = rel[:, :, 0] * s - rel[:, :, 1] * c  # pinch-site y: (sin yaw, -cos yaw)
+    (x0, y0), (x1, y1) = PALM_XY_M
+    under = (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
+    return np.count_nonzero(under & (rel[:, :, 2] > PALM_ABOVE_M - PALM_CLEARANCE_M), axis=1)
 
 
 def finger_collisions(
@@ -487,6 +512,7 @@ def synthesize_grasps(
         start, batch = start + batch, 2 * batch  # few batches when most candidates fail
         tips = _tips_world(pinch[b], yaw[b], aperture[b])
         ok = _tip_hits(tips, pinch[b, 2], own, SELF_CLEARANCE_M) == 0
+        ok &= _under_palm(pinch[b], yaw[b], own) == 0
         ok &= _tip_hits(tips, pinch[b, 2], obs, finger_clearance_m) == 0
         b = b[ok]
         ok = _pads_supported(mesh, R, t, p_world, n_world, f1[b], f23[b], yaw[b])
