@@ -687,22 +687,16 @@ _BIN5_GRASP = dict(
 def _replay_bin5_pick():
     """The captured pick replayed: (believed held, failure, how far the part rose (m), ground
     truth, evaluation only)."""
-    import mujoco
     import numpy as np
+    from _bin_replay import replayed_bin
 
-    from mks_sim.devices import make_devices
     from mks_sim.sim import truth
-    from mks_sim.tasks.bin import BinPicker, _nearest_body, _pick, bin_world
+    from mks_sim.tasks.bin import _nearest_body, _pick
     from mks_sim.tasks.episode import TOUCH_THRESHOLD_N
     from mks_sim.tasks.grasp import GraspCandidate
 
-    world = bin_world(5)
-    with make_devices(world.model, world.data, np.random.default_rng(5), {}) as devices:
-        robot = BinPicker(world, devices, active=False)
-        world.data.qpos[:] = _BIN5_QPOS
-        world.data.qvel[:] = 0.0
-        mujoco.mj_forward(world.model, world.data)
-        robot.ctl.q_target = robot.ctl.arm_qpos()
+    with replayed_bin(5, _BIN5_QPOS) as robot:
+        world = robot.world
         body = _nearest_body(world, robot.bodies, np.asarray(_BIN5_ESTIMATE))
         assert body is not None
         z0 = truth.object_to_world(world, body)[2, 3]

@@ -50,19 +50,12 @@ _BIN1_GRASP = dict(
 def _replay_bin1(cands_of):
     """The captured state, ``_pick`` with the candidates ``cands_of(robot)``: (believed held,
     failure)."""
-    import mujoco
+    from _bin_replay import replayed_bin
 
-    from mks_sim.devices import make_devices
-    from mks_sim.tasks.bin import BinPicker, _pick, bin_world
+    from mks_sim.tasks.bin import _pick
     from mks_sim.tasks.episode import TOUCH_THRESHOLD_N
 
-    world = bin_world(1)
-    with make_devices(world.model, world.data, np.random.default_rng(1), {}) as devices:
-        robot = BinPicker(world, devices, active=False)
-        world.data.qpos[:] = _BIN1_QPOS
-        world.data.qvel[:] = 0.0
-        mujoco.mj_forward(world.model, world.data)
-        robot.ctl.q_target = robot.ctl.arm_qpos()
+    with replayed_bin(1, _BIN1_QPOS) as robot:
         ok, failure, _, _ = _pick(
             robot.ctl, cands_of(robot), robot.action, 0, None, robot.table_z, TOUCH_THRESHOLD_N
         )
