@@ -326,6 +326,8 @@ def _under_palm(pinch: np.ndarray, yaw: np.ndarray, points: np.ndarray) -> np.nd
     """(K,) number of ``points`` (M, 3) within :data:`PALM_CLEARANCE_M` below (or above) a
     top-down hand's palm at pinch points ``pinch`` (K, 3), yaws ``yaw`` (K,)."""
     K = len(pinch)
+    if K:  # only points as high as the lowest palm can be under one (most grasps: none)
+        points = points[points[:, 2] > pinch[:, 2].min() + PALM_ABOVE_M - PALM_CLEARANCE_M]
     if len(points) == 0 or K == 0:
         return np.zeros(K, dtype=int)
     rel = points[None, :, :] - pinch[:, None, :]  # (K, M, 3)
