@@ -159,6 +159,7 @@ def test_cli_timing_s_reports_the_engine_stages() -> None:
         (1044, "tilted 6.8 deg with a corner on the table: the cube set to rest on its face"),
         (1063, "tilted 6.4 deg: the rested pose lost the ranking to tilted copies of itself"),
         (1099, "the true pose sunk into the table failed its check: rested, it passes"),
+        (1115, "the detector's too-large sphere on the cube took the cube's points"),
     ],
 )
 def test_stereo_cube_cases_that_were_missed(seed: int, why: str) -> None:
