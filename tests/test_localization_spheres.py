@@ -82,3 +82,14 @@ def test_a_detected_sphere_elsewhere_is_still_set_aside() -> None:
     assert on_ball.sum() > 500
     assert kept[on_ball].mean() < 0.1
     assert kept[_on_cube(p)].mean() > 0.9
+
+
+def test_a_detected_sphere_reaching_through_the_table_is_not_set_aside() -> None:
+    # the detector's 44 mm sphere centred 20 mm above the table, its shell cutting the
+    # cube's -y face (tuning seed 1192: 6 mm above it)
+    centre = CUBE + [0.0, -0.025 - 0.040, -0.005]
+    p, kept = _kept(_scene(2), _detector([[*centre, 0.044]]))
+    face = _on_cube(p) & (p[:, 1] < CUBE[1] - 0.024)
+    shell = np.abs(np.linalg.norm(p - centre, axis=1) - 0.044) < 0.003
+    assert (face & shell).sum() > 30  # the shell does cut the face
+    assert kept[face & shell].mean() > 0.9

@@ -160,6 +160,7 @@ def test_cli_timing_s_reports_the_engine_stages() -> None:
         (1063, "tilted 6.4 deg: the rested pose lost the ranking to tilted copies of itself"),
         (1099, "the true pose sunk into the table failed its check: rested, it passes"),
         (1115, "the detector's too-large sphere on the cube took the cube's points"),
+        (1192, "no vertex in the cube's segment: a box's pose settled before it was verified"),
     ],
 )
 def test_stereo_cube_cases_that_were_missed(seed: int, why: str) -> None:
