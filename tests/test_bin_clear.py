@@ -300,11 +300,82 @@ def test_grasps_that_failed_are_not_tried_again():
     ok, why, _, failed = binmod._pick(NoReach(), cands, None, 0, None, 0.75, 0.1)
     assert not ok and why.startswith("unreachable (2 pre-grasp")
     assert {id(c) for c in failed} == {id(c) for c in cands}
-    robot = SimpleNamespace(failed_grasps=failed)
+    robot = SimpleNamespace(failed_grasps=failed, retry_failed=False)
     later = [_cand(10.0, 0.005), _cand(40.0, 0.0), _cand(90.0, 0.03)]
     kept = binmod.BinPicker._untried(robot, later, "all")
     assert [id(c) for c in kept] == [id(later[1]), id(later[2])]
     assert len(binmod.BinPicker._untried(robot, later, "none")) == 3
+    # once the bin has stalled they come back: the others first, those alike a failed one
+    # next, the failed ones themselves last
+    robot.retry_failed = True
+    again = binmod.BinPicker._untried(robot, [cands[0], *later], "all")
+    assert [id(c) for c in again] == [id(later[1]), id(later[2]), id(later[0]), id(cands[0])]
+
+
+def test_a_bin_stalled_on_grasps_that_failed_tries_them_again(monkeypatch):
+    """The only part's grasp could not be reached once (the descent blocked); the next
+    planning has nothing else: the bin tries the failed grasp again instead of stopping, at
+    most RETRY_FAILED_ROUNDS times."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+
+    grasp = _cand(0.0, 0.0)
+    reach_on = {"try": 2}  # the arm reaches the grasp on its second try
+    robots: list = []
+
+    class Robot:
+        def __init__(self, world, devices, **kw):
+            robots.append(self)
+            self.bodies = ["part"]
+            self.failed_grasps: list = []
+            self.retry_failed = False
+            self.in_box = False
+            self.tries = 0
+            self.sensed = SimpleNamespace(provenance={})
+            self.perception_s = self.last_tilt_deg = 0.0
+            self.views, self.faults_seen, self.obj = 1, {}, None
+
+        def sense(self):
+            return [] if self.in_box else [SimpleNamespace(matrix=np.eye(4), score=1.0)]
+
+        def grasps(self, i, obstacles="all"):
+            return self._untried([grasp], obstacles)
+
+        _untried = binmod.BinPicker._untried
+
+        def clear_of_neighbours(self, i, cands):
+            return list(cands)
+
+        def pick(self, cands, index, perturb, instance=None):
+            self.tries += 1
+            if self.tries < reach_on["try"]:
+                self.failed_grasps.append(cands[0])
+                return False, "unreachable (0 pre-grasp, 1 descent blocked)"
+            self.in_box = True
+            return True, ""
+
+        def body_of(self, T):
+            return "part"
+
+        def picked(self):
+            return int(self.in_box)
+
+    monkeypatch.setattr(binmod, "BinPicker", Robot)
+    monkeypatch.setattr(binmod, "covered_points", lambda *a: 0)
+    monkeypatch.setattr(binmod, "in_output_box", lambda world, body: robots[-1].in_box)
+    monkeypatch.setattr(binmod, "fault_fields", lambda *a: {}, raising=False)
+    rec = binmod.clear_bin(None, {})
+    assert [p["failure"][:11] for p in rec["picks"]] == ["unreachable", ""]
+    assert rec["picked"] == 1 and rec["stopped"] == "nothing found", rec
+    # never reached: tried again RETRY_FAILED_ROUNDS times, then the bin stops
+    reach_on["try"] = 99
+    rec = binmod.clear_bin(None, {})
+    tried = [p for p in rec["picks"] if p["instance"] >= 0]
+    assert len(tried) == 1 + binmod.RETRY_FAILED_ROUNDS, rec
+    assert rec["stopped"] == "no collision-free grasp for any instance found"
 
 
 def test_a_grasp_that_reached_but_missed_may_be_tried_again():

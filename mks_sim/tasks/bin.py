@@ -503,6 +503,7 @@ class BinPicker:
         self.view_gains: dict[int, int] = {}
         self.placed: list[np.ndarray] = []  # footprints of the parts let go in the box
         self.failed_grasps: list[Any] = []  # grasps the arm could not reach (not tried again)
+        self.retry_failed = False  # ... unless the bin has stalled (:meth:`_untried`)
 
     def sense(self) -> list[Any]:
         """Every instance found, best score first (``Instance``), from one view or more.
@@ -728,10 +729,20 @@ class BinPicker:
         fails the same way: tuning bin 11 spent its budget on 8 such picks). A grasp that
         closed on one side, on nothing or slipped may be tried again: each try nudges the
         part, and a fourth try held in tuning bin 8, a second in bin 13. ``obstacles="none"``
-        (the report's "blocked or without a pair") keeps them all."""
+        (the report's "blocked or without a pair") keeps them all.
+
+        With :attr:`retry_failed` (set by :func:`clear_bin` when nothing else is left) the
+        alike ones come after the others instead of going, those failed themselves last: a
+        blocked descent is not always repeatable (tuning bin 10's last part, its state
+        replayed: a candidate 2 mm beside the blocked one reached, held and was carried)."""
         if obstacles == "none" or not self.failed_grasps:
             return list(cands)
-        return [c for c in cands if not any(_alike(c, f) for f in self.failed_grasps)]
+        fresh = [c for c in cands if not any(_alike(c, f) for f in self.failed_grasps)]
+        if not self.retry_failed:
+            return fresh
+        failed = [c for c in cands if any(c is f for f in self.failed_grasps)]
+        alike = [c for c in cands if not any(c is f for f in fresh + failed)]
+        return fresh + alike + failed
 
     def pick(
         self,
@@ -845,6 +856,7 @@ def clear_bin(
     budget = 2 * len(robot.bodies) + 2 if budget is None else budget
     failed_at: list[np.ndarray] = []
     picks: list[Pick] = []
+    retries = 0
     stopped = "budget spent"
     while len(picks) < budget:
         t0 = time.perf_counter()
@@ -868,6 +880,13 @@ def clear_bin(
         chosen, blocked, no_pair = _choose_grasp(
             robot.grasps, order, near_failed, robot.clear_of_neighbours
         )
+        if chosen is None and robot.failed_grasps and retries < RETRY_FAILED_ROUNDS:
+            # stalled on grasps the arm could not reach before: try them once more
+            retries += 1
+            robot.retry_failed = True
+            chosen, blocked, no_pair = _choose_grasp(
+                robot.grasps, order, near_failed, robot.clear_of_neighbours
+            )
         if chosen is None:
             why = f"no grasp ({blocked} blocked by obstacles, {no_pair} without a pair)"
             dt = time.perf_counter() - t0
@@ -881,6 +900,7 @@ def clear_bin(
         body = robot.body_of(T)  # evaluation only (the report)
         try:
             ok, failure = robot.pick(cands, len(picks), perturb, instance=i)
+            robot.retry_failed = False
         except PhysicsError as exc:  # the state is invalid: no further pick can run
             ok, failure = False, "simulation failed"
             stopped = f"simulation failed: {exc}"
@@ -1158,6 +1178,10 @@ TRY_TILTED = 4
 #: Two candidates are alike when their hands differ less than this in rotation and position:
 #: the next ones tried differ from those tried (a blocked descent repeats for its neighbours).
 ALIKE_DEG = 25.0
+#: When no instance has a grasp left but some were left out as alike a grasp the arm could
+#: not reach (:meth:`BinPicker._untried`), the bin tries them again, this many times at most
+#: (each try is a pick of the budget).
+RETRY_FAILED_ROUNDS = 2
 ALIKE_M = 0.01
 
 
