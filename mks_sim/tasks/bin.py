@@ -1178,11 +1178,11 @@ TRY_TILTED = 4
 #: Two candidates are alike when their hands differ less than this in rotation and position:
 #: the next ones tried differ from those tried (a blocked descent repeats for its neighbours).
 ALIKE_DEG = 25.0
+ALIKE_M = 0.01
 #: When no instance has a grasp left but some were left out as alike a grasp the arm could
 #: not reach (:meth:`BinPicker._untried`), the bin tries them again, this many times at most
 #: (each try is a pick of the budget).
 RETRY_FAILED_ROUNDS = 2
-ALIKE_M = 0.01
 
 
 def _alike(a: Any, b: Any) -> bool:
