@@ -988,8 +988,8 @@ def _set_aside_spheres(
             continue
         if any(np.linalg.norm(s[:3] - c) < s[3] + r - 2.0 * d0 for c, r in known):
             continue  # overlaps a sphere already found: the same solid
-        # ... or reaches through the table: the detector fitted a 44 mm sphere centred 6 mm
-        # above it to a cube's face and a clutter box (tuning seed 1192)
+        # ... or reaches through the table: the detector reported a 44 mm sphere centred 6 mm
+        # above it whose shell ran along a cube's face, 289 of its points (tuning seed 1192)
         if rep.table is not None and float(rep.table.distance(s[None, :3])[0]) < s[3] - 2.0 * d0:
             continue
         keep &= np.abs(np.linalg.norm(objects - s[:3], axis=1) - s[3]) > band
