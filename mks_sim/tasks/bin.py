@@ -740,9 +740,10 @@ class BinPicker:
         fresh = [c for c in cands if not any(_alike(c, f) for f in self.failed_grasps)]
         if not self.retry_failed:
             return fresh
-        failed = [c for c in cands if any(c is f for f in self.failed_grasps)]
-        alike = [c for c in cands if not any(c is f for f in fresh + failed)]
-        return fresh + alike + failed
+        failed_ids = {id(f) for f in self.failed_grasps}
+        placed = failed_ids | {id(c) for c in fresh}
+        alike = [c for c in cands if id(c) not in placed]
+        return fresh + alike + [c for c in cands if id(c) in failed_ids]
 
     def pick(
         self,
