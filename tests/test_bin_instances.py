@@ -136,19 +136,16 @@ def test_sim_bin_of_three_parts_localized(capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [12, 22, 26, 32, 42, 51, 55])
+@pytest.mark.parametrize("seed", [26, 32, 55])
 def test_six_part_bins_without_the_turned_parts_reported(seed):
-    """Tuning bins where a part was reported turned or moved (simulator truth, evaluation
-    only): bin 32, the vote's candidate 5.6 mm off failed and its near-twin passed, polished
-    to 0.1 mm and 180 deg off (571 points; the twin of the polished pose explains 589 and
-    sees nothing through itself); bin 26, a part reported turned over about its y axis
-    (0.8 mm, 179.5 deg, 8 points seen through it; the truth explains 1492 points to its
-    1135); bin 55, a part 41 % visible reported turned 180 deg about its height axis and
-    slid 19.8 mm along its length (5 points seen through it). Held by a neighbour, each with
-    3-6 points seen through it where the truth sees none: bin 12, a part 5.4 mm along its
-    length; bin 22, 18.7 deg about its height axis; bin 51, 27 mm and 88 deg off; bin 42,
-    the near-twin (180 deg) explaining 697 points to the truth's 694. Every reported
-    instance is correct and every instance >= 30 % visible but one is found."""
+    """Tuning bins where a part was reported turned (simulator truth, evaluation only):
+    bin 32, the vote's candidate 5.6 mm off failed and its near-twin passed, polished to
+    0.1 mm and 180 deg off (571 points; the twin of the polished pose explains 589 and sees
+    nothing through itself); bin 26, a part reported turned over about its y axis (0.8 mm,
+    179.5 deg, 8 points seen through it; the truth explains 1492 points to its 1135); bin 55,
+    a part 41 % visible reported turned 180 deg about its height axis and slid 19.8 mm along
+    its length (5 points seen through it). Every reported instance is correct and every
+    instance >= 30 % visible but one is found."""
     from mks_sim.tasks.bin import run_localize_all
 
     rec = run_localize_all(seed)
@@ -306,51 +303,6 @@ def test_a_part_upside_down_is_found_from_its_upright_vote(monkeypatch):
     assert found == 1
     mm, deg = err
     assert mm < 2.0 and deg < 2.0, (mm, deg)
-
-
-def test_nudges_are_small_rigid_moves_about_the_box():
-    """The 24 nudges: 12 pure slides of 1 and 2 steps along one model axis, and 12 turns
-    of +-20 and +-90 degrees about one axis of the bounding box through its centre (brute
-    force: the centre stays, the turned axis stays, every rotation is proper)."""
-    from mks_sim.geometry.meshes import sample_surface
-    from mks_sim.localization.instances import _nudged
-
-    pts = sample_surface(industrial_part_mesh(), 3000, rng=np.random.default_rng(0))[0]
-    mid = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
-    moves = _nudged(pts, 0.005, (20.0, 90.0))
-    assert moves.shape == (24, 4, 4)
-    slides = [S for S in moves if np.allclose(S[:3, :3], np.eye(3))]
-    turns = [S for S in moves if not np.allclose(S[:3, :3], np.eye(3))]
-    assert len(slides) == 12 and len(turns) == 12
-    for S in slides:
-        t = S[:3, 3]
-        assert np.count_nonzero(np.abs(t) > 1e-12) == 1
-        assert np.isclose(np.abs(t).max(), 0.005) or np.isclose(np.abs(t).max(), 0.010)
-    angles = []
-    for S in turns:
-        R = S[:3, :3]
-        assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
-        assert np.allclose(R @ mid + S[:3, 3], mid)  # turned about the box's centre
-        assert sum(np.allclose(R[:, k], np.eye(3)[k]) for k in range(3)) == 1  # one axis kept
-        angles.append(round(rotation_angle_deg(R, np.eye(3)), 6))
-    assert sorted(angles) == [20.0] * 6 + [90.0] * 6
-
-
-def test_a_pose_seen_through_loses_to_a_clean_one():
-    """Between two passing poses of one segment a point seen through a pose costs it
-    INSIDE_WEIGHT explained points: tuning bin 42's near-twin (697 points, 5 seen through)
-    loses to the truth (694, none); with explained points alone it won."""
-    from mks_sim.localization.instances import INSIDE_WEIGHT, Instance, _support
-    from mks_sim.localization.verify import Consistency
-
-    def inst(explained: int, inside: int) -> Instance:
-        check = Consistency(explained, inside, below=0, penetration=0.0, ok=True)
-        return Instance(np.eye(4), 0.6, explained, check, np.arange(3), 0)
-
-    twin, truth = inst(697, 5), inst(694, 0)
-    assert twin.explained > truth.explained
-    assert _support(truth) > _support(twin)
-    assert _support(inst(900, 1)) == 900 - INSIDE_WEIGHT
 
 
 def test_turned_over_poses_keep_a_face_in_place():

@@ -10,13 +10,11 @@ explained points removed (issue 13):
 2. per segment, the best hypotheses are polished by ICP on the unclaimed points near them and
    checked against the WHOLE cloud (:func:`~mks_sim.localization.verify.consistency`: no
    point seen through the posed model, none under it, no table penetration);
-3. of the consistent ones that are new -- the centre farther than ``same_fraction`` x the
+3. the first consistent one that is new -- its centre farther than ``same_fraction`` x the
    model size from every accepted instance's or overlapping each nearer one less than
-   :data:`SAME_OVERLAP`, and most of the explained points not claimed already -- the one
-   with the most support (explained points, less :data:`INSIDE_WEIGHT` per point seen
-   through it) is accepted, its near-twins, turns and, when points are seen through it,
-   small moves (:func:`_nudged`) competing; its points (within 2 inlier distances of the
-   whole posed surface) are claimed;
+   :data:`SAME_OVERLAP`, and most of its explained points not claimed
+   already -- is accepted and its points (within 2 inlier distances of the whole posed
+   surface) are claimed;
 4. a segment none of whose candidates passes votes again with the object's alternate model
    (its free-form model: point-pair features need no visible corner or face pair, which a
    pile hides), then, if nothing passes still, is split into clusters that vote on their own;
@@ -86,23 +84,6 @@ MIN_FLIP_SCORE = 0.7
 #: visible found 92 -> 93 of 103, false positives 2 -> 1; bins 0-19: see docs/bin.md. Slid
 #: turns for a segment where nothing passed added wrong instances (bin 53: 6 -> 1 found).
 SLIDE_STEP = 0.04
-#: Small moves (:func:`_nudged`) that compete with an accepted pose seen through: slides of
-#: 1 and 2 x :data:`SLIDE_STEP` x the size along each box axis and turns by these angles
-#: (degrees) about each box axis through the box's centre, 24 for any model. In a pile ICP
-#: stops where a neighbour holds it (tuning bins 12, 22, 51: a part reported 5.4 mm along its
-#: length, 18.7 deg about its height axis, and 27 mm and 88 deg off, each with 3-6 points
-#: seen through it; the truth explains as many or more points and sees none).
-NUDGE_DEG = (20.0, 90.0)
-#: Rounds of nudges at most: each round starts from the best so far and stops once the best
-#: sees nothing through itself or no nudge wins (bin 51: the first round moved the pose from
-#: 27 mm to 8.8 mm off, still seen through; the second reached the truth).
-NUDGE_ROUNDS = 3
-#: When two poses of one segment compete, a point seen through a pose costs it this many
-#: explained points (:func:`_support`). True poses see nothing through themselves
-#: (:data:`MAX_INSIDE`); a wrong pose may still explain a few more points than the truth
-#: (tuning bin 42: the near-twin, 180 deg off, explained 697 points with 5 seen through it,
-#: the truth 694 with none).
-INSIDE_WEIGHT = 10.0
 #: A segment with at least this many unclaimed points, none of whose candidates passed,
 #: votes with the object's alternate model (its free-form model) before it is split.
 ALTERNATE_MIN_POINTS = 60
@@ -233,7 +214,6 @@ def localize_all(
     twins = near_symmetries(surf_pts, model.symmetries())
     flips = _turned_over(surf_pts)
     slides = _turned_over(surf_pts, step=SLIDE_STEP * size)
-    nudges = _nudged(surf_pts, SLIDE_STEP * size, NUDGE_DEG)
     flip_samples = surf_pts[:: max(1, len(surf_pts) // 300)]
     d = inlier_distance
     if d is None:
@@ -292,10 +272,9 @@ def localize_all(
             free_tree: list[cKDTree] = free_tree,
         ) -> bool:
             def better(h: PoseHypothesis, best: Instance | None) -> Instance | None:
-                """``h`` checked as an instance when it passes and has more support than
-                ``best`` (:func:`_support`: a part and its near-twin flipped pose both fit;
-                the right one explains more and sees nothing through itself), else
-                ``best``."""
+                """``h`` checked as an instance when it passes and explains more points than
+                ``best`` (a part and its near-twin flipped pose both fit; the right one
+                explains more), else ``best``."""
                 inst = _check(
                     h, cloud, tree, free, claimed, found, surface, surf_pts, surf_nrm,
                     use_table, d, centre, radius, size, same_fraction, min_new_fraction,
@@ -303,9 +282,7 @@ def localize_all(
                 )  # fmt: skip
                 if inst is None or inst.score < min_score:
                     return best
-                if inst.check.inside > 0:
-                    seen_through.append(inst)
-                return inst if best is None or _support(inst) > _support(best) else best
+                return inst if best is None or inst.explained > best.explained else best
 
             def better_of(poses: Any, best: Instance | None) -> Instance | None:
                 """:func:`better` over (4, 4) poses in turn."""
@@ -322,7 +299,6 @@ def localize_all(
                 n_near = batch_explained(flip_samples, turned, free_tree[0], 2 * d)
                 return turned[np.argsort(-n_near, kind="stable")[:FLIPS_CHECKED]]
 
-            seen_through: list[Instance] = []  # passing candidates that see points through
             best: Instance | None = None
             for h in hyps[:per_segment]:
                 best = better(h, best)
@@ -344,6 +320,15 @@ def localize_all(
                 # (tuning bins 29 and 32: the twin won with 868 and 571 points, its own twin
                 # explains 1047 and 589 and sees nothing through itself)
                 best = better_of(best.matrix @ twins, best)
+            if best is not None and best.check.inside > 0:
+                # an accepted pose through which points are seen may be the part turned
+                # over (tuning bin 26: 0.8 mm and 179.5 deg off about the model's y axis
+                # explained 1135 points and saw 8 through itself, the turned-over truth
+                # 1492 and none): its best turns compete. Turning every accepted pose
+                # cost instances (tuning bins 20-39: 98 -> 95 of 103 found: a turn
+                # explaining a neighbour's points as well took them). The turns slide too
+                # (:data:`SLIDE_STEP`)
+                best = better_of(turned_over(best.matrix, slides), best)
             if best is None:
                 # nothing passed: the first candidate turned over (a part lying upside down
                 # shows its flat bottom, which the upright pose puts its own bottom on:
@@ -352,28 +337,6 @@ def localize_all(
                 best = better_of(turned_over(base), best)
                 if best is not None and best.score < MIN_FLIP_SCORE:
                     best = None
-            if best is not None and (best.check.inside > 0 or seen_through):
-                # an accepted pose through which points are seen may be the part turned
-                # over (tuning bin 26: 0.8 mm and 179.5 deg off about the model's y axis
-                # explained 1135 points and saw 8 through itself, the turned-over truth
-                # 1492 and none): its best turns compete. So they do when another passing
-                # candidate of the segment saw points through itself (bin 26 again: with
-                # :func:`_support` a wrong pose seeing nothing, 1092 points, beat that one
-                # and was kept unturned). Turning every accepted pose cost instances
-                # (tuning bins 20-39: 98 -> 95 of 103 found: a turn explaining a
-                # neighbour's points as well took them). The turns slide too
-                # (:data:`SLIDE_STEP`)
-                kept: Instance = best
-                seen = kept.check.inside > 0
-                kept = better_of(turned_over(kept.matrix, slides), kept) or kept
-                if seen or kept.check.inside > 0:
-                    # the pose seen through, nudged (:data:`NUDGE_ROUNDS`)
-                    for _ in range(NUDGE_ROUNDS):
-                        before = kept
-                        kept = better_of(kept.matrix @ nudges, kept) or kept
-                        if kept is before or kept.check.inside == 0:
-                            break
-                best = kept
             if best is None:
                 return False
             found.append(best)
@@ -476,36 +439,6 @@ def _turned_over(surf_pts: FloatArray, step: float | None = None) -> FloatArray:
             S[:3, :3] = R
             S[:3, 3] = p - R @ p
             out.append(S)
-    return np.stack(out)
-
-
-def _support(inst: Instance) -> float:
-    """What decides between two passing poses of one segment: the points a pose explains,
-    less :data:`INSIDE_WEIGHT` for each point seen through it."""
-    return inst.explained - INSIDE_WEIGHT * inst.check.inside
-
-
-def _nudged(surf_pts: FloatArray, step: float, degrees: Sequence[float]) -> FloatArray:
-    """(K, 4, 4) small moves of a model (model frame): slides by +-1 and +-2 ``step`` along
-    each axis, and turns by +- each of ``degrees`` about each axis through the centre of the
-    samples' bounding box (K = 3 x (4 + 2 len(degrees))): where a pose held by a neighbour
-    in a pile lies from the truth."""
-    lo, hi = surf_pts.min(axis=0), surf_pts.max(axis=0)
-    mid = 0.5 * (lo + hi)
-    out = []
-    for k in range(3):
-        for m in (-2, -1, 1, 2):
-            S = np.eye(4)
-            S[k, 3] = m * step
-            out.append(S)
-        i, j = [a for a in range(3) if a != k]
-        for deg in degrees:
-            for a in (-np.radians(deg), np.radians(deg)):
-                S = np.eye(4)
-                S[i, i] = S[j, j] = np.cos(a)
-                S[i, j], S[j, i] = -np.sin(a), np.sin(a)
-                S[:3, 3] = mid - S[:3, :3] @ mid
-                out.append(S)
     return np.stack(out)
 
 
