@@ -741,8 +741,8 @@ class BinPicker:
         if not self.retry_failed:
             return fresh
         failed_ids = {id(f) for f in self.failed_grasps}
-        placed = failed_ids | {id(c) for c in fresh}
-        alike = [c for c in cands if id(c) not in placed]
+        fresh_or_failed = failed_ids | {id(c) for c in fresh}
+        alike = [c for c in cands if id(c) not in fresh_or_failed]
         return fresh + alike + [c for c in cands if id(c) in failed_ids]
 
     def pick(
