@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -224,7 +225,9 @@ def test_icp_ends_a_two_cycle_between_the_trimmed_sets() -> None:
     with make_devices(world.model, world.data, np.random.default_rng(2)) as devices:
         snap = graph.snapshot(devices)
         cloud = np.asarray(snap.get("Range_Points").data)[:, :3]
-    objects = representation_of(cloud, workstation_representation(graph)).objects
+    # the scan at its full density (no point budget): the case was traced on it
+    full = dataclasses.replace(workstation_representation(graph), max_points=10**9)
+    objects = representation_of(cloud, full).objects
     model = load_model("cube_5cm")
     pts = np.asarray(model.surface_points())
     surface = ModelSurface.from_arrays(pts, model.surface_normals())
@@ -240,3 +243,38 @@ def test_icp_ends_a_two_cycle_between_the_trimmed_sets() -> None:
         pos, rot = pose_error(make_transform(res.matrix[:3, :3] @ S.T, res.matrix[:3, 3]), T_true)
         assert pos < 6e-5 and rot < 0.15, (pos, rot)
     assert max(iterations) <= 10, iterations
+
+
+def test_icp_stall_stops_a_sliding_fit_and_keeps_a_converging_one() -> None:
+    """``stall``: a start on one face of a cube, the scan showing only that face, slides
+    along it. With ``stall=4`` ICP stops at the first iteration whose residual is not 0.1 %
+    below the residual 4 iterations before (checked against the residuals of the same fit
+    run without it, iteration by iteration); without it, it runs on. From a nearby start on a
+    scan of three faces, both reach the true pose (0.05 mm / 0.05 deg)."""
+    from mks_sim.models.refine import STALL_GAIN
+
+    rng = np.random.default_rng(3)
+    mesh = box_mesh(0.05)
+    surface = ModelSurface.from_arrays(*sample_surface(mesh, 4000, rng=rng))
+    top, _ = sample_surface(mesh, 6000, rng=rng)
+    face = top[top[:, 2] > 0.0249]
+    face = face + rng.normal(0, 3e-4, face.shape)
+    start = make_transform(np.eye(3), [0.01, 0.004, 0.0])
+
+    def run(cap: int, stall: int | None = None):  # type: ignore[no-untyped-def]
+        return icp_point_to_plane(
+            surface, face, start, max_distance=0.02, max_iterations=cap, stall=stall
+        )
+
+    free, held = run(40), run(40, stall=4)
+    assert not held.converged and held.iterations < free.iterations
+    rmse = {k: run(k).rmse for k in range(1, held.iterations + 1)}  # the free fit's residuals
+    assert rmse[held.iterations] == held.rmse
+    stalled = [k for k in range(5, held.iterations + 1) if rmse[k] > (1 - STALL_GAIN) * rmse[k - 4]]
+    assert stalled == [held.iterations]
+    three = top[(top[:, 0] > 0.0249) | (top[:, 1] > 0.0249) | (top[:, 2] > 0.0249)]
+    near = _perturb(np.eye(4), 3.0, 0.002, rng)
+    for stall in (None, 4):
+        res = icp_point_to_plane(surface, three, near, max_distance=0.01, stall=stall)
+        pos, rot = pose_error(res.matrix, np.eye(4))
+        assert pos < 5e-5 and rot < 0.05, (stall, pos, rot)

@@ -122,6 +122,9 @@ class VerifiedHypothesis:
 _DIAG6 = np.diag_indices(6)
 #: Scene points from which ICP iterations use the compiled normal equations (numba).
 ICP_COMPILED_MIN_POINTS = 64
+#: ``stall``: ICP stops once its RMS residual fell by less than this fraction over the last
+#: ``stall`` iterations.
+STALL_GAIN = 1e-3
 
 
 def _compiled_available() -> bool:
@@ -158,6 +161,7 @@ def icp_point_to_plane(
     tolerance: float = 1e-5,
     axis: ArrayLike | None = None,
     compiled: bool | None = None,
+    stall: int | None = None,
 ) -> IcpResult:
     """Point-to-plane ICP of a model surface to scene points (scene -> model correspondences).
 
@@ -180,6 +184,10 @@ def icp_point_to_plane(
             (:mod:`mks_sim.models._refine_kernels`; the same sums in another order) or by
             numpy; None: compiled from :data:`ICP_COMPILED_MIN_POINTS` scene points when numba
             imports.
+        stall: stop (not converged) once the RMS residual fell by less than
+            :data:`STALL_GAIN` (0.1 %) over this many iterations: the pose slides along a fit
+            that no longer improves (a wrong start in the healthy cube's scans ran all 26
+            iterations); None runs to ``tolerance`` or ``max_iterations``.
 
     Returns:
         :class:`IcpResult`.
@@ -209,6 +217,7 @@ def icp_point_to_plane(
     A = np.empty((0 if compiled else len(scene), 6))
     rmse, converged, it = np.inf, False, 0
     step = np.zeros(6)  # the last update, translation scaled by the size
+    history: list[float] = []
     for it in range(1, max_iterations + 1):  # noqa: B007 - reported
         p = scene @ scene_to_model[:3, :3].T + scene_to_model[:3, 3]  # (N, 3) model frame
         dist, j = surface.tree.query(p, distance_upper_bound=max_distance)
@@ -262,6 +271,10 @@ def icp_point_to_plane(
         if cycle or np.linalg.norm(x[:3]) + np.linalg.norm(x[3:]) / size < tolerance:
             converged = True
             break
+        history.append(rmse)
+        if stall is not None and len(history) > stall:
+            if rmse > (1.0 - STALL_GAIN) * history[-1 - stall]:
+                break  # the fit no longer improves: further steps slide along it
     return IcpResult(invert(scene_to_model), rmse, it, converged)
 
 
@@ -541,6 +554,7 @@ def verify_hypotheses(
     prescreen: int | None = None,
     coarse_points: int = 500,
     rng: np.random.Generator | None = None,
+    icp_stall: int | None = None,
 ) -> list[VerifiedHypothesis]:
     """Refine (ICP), score and rank hypotheses; report symmetric equivalents once.
 
@@ -563,6 +577,7 @@ def verify_hypotheses(
             ``max_icp``).
         coarse_points: scene points of the coarse ICP stage.
         rng: generator for that subset (default seeded 0).
+        icp_stall: ``stall`` of the full refinement's ICP (:func:`icp_point_to_plane`).
 
     Returns:
         One :class:`VerifiedHypothesis` per distinct placement, best score first.
@@ -621,6 +636,7 @@ def verify_hypotheses(
                 T_coarse,
                 max_distance=gate,
                 max_iterations=icp_iterations + extra_iterations,
+                stall=icp_stall,
             )
             T_new = icp.matrix
         else:
