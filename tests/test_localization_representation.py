@@ -167,3 +167,44 @@ def test_segments_are_verified_most_promising_first_and_stop_when_settled() -> N
     assert np.max(np.min(np.linalg.norm(A[:, None] - B[None], axis=2), axis=1)) < 0.002
     _, seg_of_all = polyhedral_candidates(model, rep, segments, rng=np.random.default_rng(0))
     assert box_seg in seg_of_all
+
+
+def test_description_sensors_ask_for_the_flows_one_representation() -> None:
+    """Every description sensor over ``Range_Points`` in ``sensors/`` asks for the same
+    representation as the localization flow, so one snapshot builds it once. (A point budget
+    set on Vertex_Detector alone gave Sphere_Detector a second, full-density representation:
+    45 ms more per sphere localization.)"""
+    from mks_sim.localization.workstation import _default_graph, workstation_representation
+    from mks_sim.sensing.programs.points import representation_config
+
+    graph = _default_graph()
+    want = workstation_representation(graph)
+    programs = {"surface_curvature", "vertex_detector", "control_point_detector"}
+    programs.add("sphere_detector")
+    seen = []
+    for name, spec in graph.sensors.items():
+        if spec.program in programs and tuple(spec.inputs) == ("Range_Points",):
+            assert representation_config(spec.params) == want, name
+            seen.append(name)
+    assert len(seen) == 4, seen
+
+
+def test_a_cloud_over_the_point_budget_is_voxel_averaged() -> None:
+    """``max_points``: a cloud above the budget is averaged on a voxel grid of edge 1.1 x
+    spacing x sqrt(N / max_points) (spacing: the median nearest-neighbour distance of the
+    input); every averaged point lies within one voxel diagonal of an input point, there
+    are fewer of them, and the cube and the sphere are still two objects. Under the budget
+    nothing is averaged."""
+    from scipy.spatial import cKDTree
+
+    pts = _scene()
+    tree = cKDTree(pts)
+    rep = Representation(pts, RepresentationConfig(table_z_m=TABLE_Z, max_points=6000))
+    spacing = float(np.median(tree.query(pts, k=2)[0][:, 1]))
+    assert rep.voxel == pytest.approx(1.1 * spacing * np.sqrt(len(pts) / 6000), rel=0.1)
+    assert len(rep.points) < 0.8 * len(pts)
+    d, _ = tree.query(rep.points)
+    assert d.max() <= np.sqrt(3) * rep.voxel
+    assert len(rep.components()) == 2
+    full = Representation(pts, RepresentationConfig(table_z_m=TABLE_Z))
+    assert full.voxel == 0 and len(full.points) == len(pts)

@@ -112,6 +112,7 @@ def workstation_representation(graph: SensorGraph | None = None) -> Representati
         table_margin_m=float(params.get("table_margin_m", 0.002)),
         gap_m=float(params.get("gap_m", 0.012)),
         m=int(params.get("m", 12)),
+        max_points=int(params.get("max_points", 100000)),
     )
 
 

@@ -90,14 +90,17 @@ class DepthParams(SourceParams):
 
 @dataclass(frozen=True)
 class TableParams:
-    """The table plane (a sensor parameter; None: found by the representation) and the
-    object separation of the representation (``_representation``)."""
+    """The table plane (a sensor parameter; None: found by the representation), the
+    object separation of the representation (``_representation``) and its point budget: a
+    larger cloud is first averaged on a voxel grid of edge 1.1 x spacing x
+    sqrt(N / ``max_points``) (:class:`~mks_sim.localization.representation.Representation`)."""
 
     table_z_m: float | None = None
     table_margin_m: float = param(0.003, low=0.0)
     gap_m: float = param(0.012, low=0.0, low_open=True)
     m: int = param(12, low=1)
     min_object_points: int = param(30, low=1)
+    max_points: int = param(100000, low=10)
 
 
 @dataclass(frozen=True)
@@ -180,10 +183,26 @@ def _stream_points(inputs: Mapping[str, Any], program: str) -> np.ndarray:
     return pts[np.isfinite(pts).all(axis=1)]
 
 
+def representation_config(params: Mapping[str, Any]) -> Any:
+    """The :class:`~mks_sim.localization.representation.RepresentationConfig` a description
+    sensor's parameters ask for (:class:`TableParams`): sensors whose configs are equal share
+    one representation of their input stream."""
+    from mks_sim.localization.representation import RepresentationConfig
+
+    table_z = params.get("table_z_m")
+    return RepresentationConfig(
+        table_z_m=None if table_z is None else float(table_z),
+        table_margin_m=float(params.get("table_margin_m", 0.003)),
+        gap_m=float(params.get("gap_m", 0.012)),
+        m=int(params.get("m", 12)),
+        max_points=int(params.get("max_points", 100000)),
+    )
+
+
 def _representation(inputs: Mapping[str, Any], params: Mapping[str, Any], program: str) -> Any:
     """The shared low-level representation of the input point stream, built at most once per
     stream (k-d tree, table, SPG, normals, segmentation: ``mks_sim.localization``)."""
-    from mks_sim.localization.representation import RepresentationConfig, representation_of
+    from mks_sim.localization.representation import representation_of
 
     if len(inputs) != 1:
         raise SensorFailure(program, f"expected one point-stream input, got {sorted(inputs)}")
@@ -191,15 +210,8 @@ def _representation(inputs: Mapping[str, Any], params: Mapping[str, Any], progra
     data = value.data if isinstance(value, Stream) else np.asarray(value, dtype=float)
     if data.ndim != 2 or data.shape[1] < 3 or len(data) < 10:
         raise SensorFailure(program, f"expected (N >= 10, >=3) points, got shape {data.shape}")
-    table_z = params.get("table_z_m")
-    config = RepresentationConfig(
-        table_z_m=None if table_z is None else float(table_z),
-        table_margin_m=float(params.get("table_margin_m", 0.003)),
-        gap_m=float(params.get("gap_m", 0.012)),
-        m=int(params.get("m", 12)),
-    )
     try:
-        return representation_of(data, config)
+        return representation_of(data, representation_config(params))
     except DataError as exc:
         raise SensorFailure(program, str(exc)) from exc
 
