@@ -208,3 +208,9 @@ def test_a_cloud_over_the_point_budget_is_voxel_averaged() -> None:
     assert len(rep.components()) == 2
     full = Representation(pts, RepresentationConfig(table_z_m=TABLE_Z))
     assert full.voxel == 0 and len(full.points) == len(pts)
+    # max_voxel_spacings: the budget's edge is rep.voxel / spacing spacings; a cap below it
+    # leaves the cloud alone, a cap above it lets the budget average
+    ratio = rep.voxel / rep._raw_stats[0]
+    for cap, averaged in ((0.9 * ratio, False), (1.1 * ratio, True)):
+        cfg = RepresentationConfig(table_z_m=TABLE_Z, max_points=6000, max_voxel_spacings=cap)
+        assert (Representation(pts, cfg).voxel > 0) is averaged, cap

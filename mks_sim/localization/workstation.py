@@ -47,7 +47,7 @@ import functools
 import logging
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -107,12 +107,13 @@ def workstation_representation(graph: SensorGraph | None = None) -> Representati
             f"sensor {REPRESENTATION_SENSOR}: field 'params.table_z_m': expected the nominal "
             f"table height (metres), got {params.get('table_z_m')!r}"
         )
-    return RepresentationConfig(
-        table_z_m=float(params["table_z_m"]),
+    from mks_sim.sensing.programs.points import representation_config
+
+    # the description sensors' config (their programs read the same parameters), with the
+    # workstation's table margin as default
+    return replace(
+        representation_config(params),
         table_margin_m=float(params.get("table_margin_m", 0.002)),
-        gap_m=float(params.get("gap_m", 0.012)),
-        m=int(params.get("m", 12)),
-        max_points=int(params.get("max_points", 100000)),
     )
 
 

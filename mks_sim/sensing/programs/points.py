@@ -93,7 +93,8 @@ class TableParams:
     """The table plane (a sensor parameter; None: found by the representation), the
     object separation of the representation (``_representation``) and its point budget: a
     larger cloud is first averaged on a voxel grid of edge 1.1 x spacing x
-    sqrt(N / ``max_points``) (:class:`~mks_sim.localization.representation.Representation`)."""
+    sqrt(N / ``max_points``), when that edge is at most ``max_voxel_spacings`` spacings
+    (:class:`~mks_sim.localization.representation.Representation`)."""
 
     table_z_m: float | None = None
     table_margin_m: float = param(0.003, low=0.0)
@@ -101,6 +102,7 @@ class TableParams:
     m: int = param(12, low=1)
     min_object_points: int = param(30, low=1)
     max_points: int = param(100000, low=10)
+    max_voxel_spacings: float | None = param(None, low=1.0)
 
 
 @dataclass(frozen=True)
@@ -196,7 +198,12 @@ def representation_config(params: Mapping[str, Any]) -> Any:
         gap_m=float(params.get("gap_m", 0.012)),
         m=int(params.get("m", 12)),
         max_points=int(params.get("max_points", 100000)),
+        max_voxel_spacings=_optional_float(params.get("max_voxel_spacings")),
     )
+
+
+def _optional_float(value: Any) -> float | None:
+    return None if value is None else float(value)
 
 
 def _representation(inputs: Mapping[str, Any], params: Mapping[str, Any], program: str) -> Any:
