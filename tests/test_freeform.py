@@ -441,3 +441,21 @@ def test_pairings_are_capped_to_the_most_salient_keypoints(
     ver = model.localize(pts, nrm)
     pos, rot = pose_error(ver[0].hypothesis.matrix, T, model.symmetries())
     assert pos < 0.004 and rot < 4.0
+
+
+def test_cell_keys_order_and_group_cells_as_their_rows_do() -> None:
+    """``cell_keys``: one int64 per (x, y, z) cell, negative cells included: equal cells share a
+    key, distinct cells do not, and sorted keys list the cells in the order of
+    ``np.unique(cells, axis=0)``; cells too far apart for one int64 give None."""
+    from mks_sim.geometry.keypoints import cell_keys
+
+    rng = np.random.default_rng(5)
+    cells = rng.integers(-40, 40, size=(3000, 3))
+    keys = cell_keys(cells)
+    assert keys is not None
+    rows, row_inv = np.unique(cells, axis=0, return_inverse=True)
+    uniq, first, key_inv = np.unique(keys, return_index=True, return_inverse=True)
+    np.testing.assert_array_equal(cells[first], rows)
+    np.testing.assert_array_equal(key_inv.reshape(-1), row_inv.reshape(-1))
+    assert cell_keys(np.array([[0, 0, 0], [2**31, 2**31, 2**31]])) is None
+    assert len(cell_keys(np.zeros((0, 3), dtype=np.int64))) == 0

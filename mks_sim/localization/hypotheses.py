@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError, MksError
+from mks_sim.geometry.keypoints import cell_keys
 from mks_sim.geometry.points import fibonacci_sphere
 from mks_sim.geometry.transforms import make_transform, rotation_from_covariance
 from mks_sim.lowlevel.grouping import Vertexes
@@ -362,8 +363,12 @@ def sphere_centre_hough(
         return []
     votes = objects - radius * normals
     cell = radius / 5.0
-    keys = np.floor(votes / cell).astype(np.int64)
-    uniq, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    cells = np.floor(votes / cell).astype(np.int64)
+    keys = cell_keys(cells)  # the cells' order, a 1-D sort
+    if keys is not None:
+        _, inv, counts = np.unique(keys, return_inverse=True, return_counts=True)
+    else:
+        _, inv, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
     inv = inv.reshape(-1)
     out: list[FloatArray] = []
     for k in np.argsort(-counts)[: peaks * 3]:

@@ -85,11 +85,14 @@ def _tree(points: FloatArray) -> cKDTree:
 def voxel_average(points: FloatArray, voxel: float) -> FloatArray:
     """(M, 3) centroids of the points in each occupied cube of edge ``voxel`` (the one voxel
     filter of the package)."""
-    keys = np.floor(points / voxel).astype(np.int64)
-    keys -= keys.min(axis=0)
-    span = keys.max(axis=0) + 1
-    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]  # one int64 per cell
-    _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
+    from mks_sim.geometry.keypoints import cell_keys
+
+    cells = np.floor(points / voxel).astype(np.int64)
+    flat = cell_keys(cells)  # one int64 per cell
+    if flat is not None:
+        _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
+    else:  # a cloud too wide for one int64 key per cell
+        _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
     out = np.zeros((len(counts), 3))
     for d in range(3):

@@ -161,15 +161,14 @@ def postprocess(points: np.ndarray, params: Mapping[str, Any]) -> np.ndarray:
         pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
     voxel = float(params.get("voxel_m", 0.0))
     if voxel > 0 and len(pts):
-        keys = np.floor(pts / voxel).astype(np.int64)
-        keys -= keys.min(axis=0)  # the same cells, counted from 0
-        span = keys.max(axis=0) + 1
-        if float(span[0]) * float(span[1]) * float(span[2]) < 2.0**62:
-            # one int64 per cell (mixed radix): a 1-D unique, ~10x faster than rows
-            keys = keys @ np.array([span[1] * span[2], span[2], 1], dtype=np.int64)
+        from mks_sim.geometry.keypoints import cell_keys
+
+        cells = np.floor(pts / voxel).astype(np.int64)
+        keys = cell_keys(cells)  # one int64 per cell: a 1-D unique, ~10x faster than rows
+        if keys is not None:
             _, first = np.unique(keys, return_index=True)
         else:
-            _, first = np.unique(keys, axis=0, return_index=True)
+            _, first = np.unique(cells, axis=0, return_index=True)
         pts = pts[np.sort(first)]
     return pts
 
