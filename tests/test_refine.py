@@ -140,6 +140,9 @@ def test_bad_inputs() -> None:
         icp_point_to_plane(surface, np.zeros((3, 3)), np.eye(4), max_distance=1.0)
     with pytest.raises(DataError, match="initial transform"):
         icp_point_to_plane(surface, np.zeros((10, 3)), np.eye(3), max_distance=1.0)
+    for stall in (0, -2, 2.5, True):
+        with pytest.raises(DataError, match="stall"):
+            icp_point_to_plane(surface, np.zeros((10, 3)), np.eye(4), max_distance=1.0, stall=stall)
     with pytest.raises(DataError, match=r"\(S, 3, 3\)"):
         group_equivalent([np.eye(4)], np.eye(3), translation_tol=1.0)
 

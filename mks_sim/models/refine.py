@@ -134,6 +134,7 @@ def _compiled_available() -> bool:
 
     return _gridknn.available()
 
+
 # ICP stops in a two-cycle: an update as large as the last (0.7-1.4x), below CYCLE_MAX_STEP
 # (rotation radians + translation / model size: 0.06 deg), pointing back along it within
 # this cosine.
@@ -207,6 +208,10 @@ def icp_point_to_plane(
     T = np.asarray(initial, dtype=np.float64)
     if T.shape != (4, 4):
         raise DataError(f"icp_point_to_plane: expected (4, 4) initial transform, got {T.shape}")
+    if stall is not None and (isinstance(stall, bool) or not isinstance(stall, int) or stall < 1):
+        raise DataError(
+            f"icp_point_to_plane: expected stall >= 1 iterations or None, got {stall!r}"
+        )
     scene_to_model = invert(T)
     size = max(surface.size, 1e-12)
     normals, offsets = surface.normals, surface.offsets
