@@ -63,17 +63,21 @@ def cell_keys(cells: NDArray[np.int64]) -> NDArray[np.int64] | None:
     return np.asarray(rel @ np.array([span[1] * span[2], span[2], 1], dtype=np.int64))
 
 
+def first_in_each_cell(cells: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Ascending indices of the first row of each distinct (x, y, z) cell in ``cells``."""
+    keys = cell_keys(cells)
+    if keys is not None:
+        _, first = np.unique(keys, return_index=True)
+    else:  # cells too far apart for one int64 key each
+        _, first = np.unique(cells, axis=0, return_index=True)
+    return np.sort(first).astype(np.int64)
+
+
 def voxel_downsample(points: FloatArray, spacing: float) -> NDArray[np.int64]:
     """Indices of one point per occupied voxel of edge ``spacing`` (the first, in input order)."""
     if len(points) == 0:
         return np.zeros(0, np.int64)
-    cells = np.floor((points - points.min(axis=0)) / spacing).astype(np.int64)
-    keys = cell_keys(cells)
-    if keys is not None:
-        _, first = np.unique(keys, return_index=True)
-    else:  # a cloud too wide for one int64 key per voxel
-        _, first = np.unique(cells, axis=0, return_index=True)
-    return np.sort(first).astype(np.int64)
+    return first_in_each_cell(np.floor((points - points.min(axis=0)) / spacing).astype(np.int64))
 
 
 def _ball_neighbours(

@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError
+from mks_sim.geometry.keypoints import cell_keys
 
 __all__ = [
     "Representation",
@@ -85,8 +86,6 @@ def _tree(points: FloatArray) -> cKDTree:
 def voxel_average(points: FloatArray, voxel: float) -> FloatArray:
     """(M, 3) centroids of the points in each occupied cube of edge ``voxel`` (the one voxel
     filter of the package)."""
-    from mks_sim.geometry.keypoints import cell_keys
-
     cells = np.floor(points / voxel).astype(np.int64)
     flat = cell_keys(cells)  # one int64 per cell
     if flat is not None:

@@ -36,6 +36,7 @@ from scipy.spatial import cKDTree
 
 from mks_sim.errors import SensorFailure
 from mks_sim.fields import Field, OutputVector, Stream
+from mks_sim.geometry.keypoints import first_in_each_cell
 from mks_sim.sensing.programs.points import SourceParams, depth_to_points, postprocess
 from mks_sim.sensing.registry import params_of, takes_params
 from mks_sim.specs import param
@@ -145,8 +146,7 @@ def merge_views(clouds: Sequence[np.ndarray], merge_m: float) -> tuple[np.ndarra
             spacing = float(np.median(cKDTree(pts).query(sample, k=2)[0][:, 1]))
             cube = min(merge_m, spacing) if spacing > 0 else merge_m
         if kept and merge_m > 0 and len(pts):
-            _, first = np.unique(np.floor(pts / cube).astype(np.int64), axis=0, return_index=True)
-            pts = pts[np.sort(first)]
+            pts = pts[first_in_each_cell(np.floor(pts / cube).astype(np.int64))]
             d = cKDTree(np.concatenate(kept)).query(pts, distance_upper_bound=merge_m)[0]
             pts = pts[~np.isfinite(d)]
         kept.append(pts)
