@@ -459,3 +459,25 @@ def test_cell_keys_order_and_group_cells_as_their_rows_do() -> None:
     np.testing.assert_array_equal(key_inv.reshape(-1), row_inv.reshape(-1))
     assert cell_keys(np.array([[0, 0, 0], [2**31, 2**31, 2**31]])) is None
     assert len(cell_keys(np.zeros((0, 3), dtype=np.int64))) == 0
+
+
+def test_unique_keys_is_numpys_unique_of_the_keys() -> None:
+    """``unique_keys`` (one unstable sort, the first index as the smallest of each group)
+    returns what ``np.unique(..., return_index, return_inverse, return_counts)`` does, on
+    shuffled, sorted and reversed keys with many repeats, and on no keys."""
+    from mks_sim.geometry.keypoints import cell_keys, first_in_each_cell, unique_keys
+
+    rng = np.random.default_rng(11)
+    for trial in range(20):
+        cells = rng.integers(-6, 6, size=(int(rng.integers(1, 4000)), 3)) * (trial + 1)
+        keys = cell_keys(cells)
+        assert keys is not None
+        for k in (keys, np.sort(keys), keys[::-1].copy()):
+            got = unique_keys(k)
+            want = np.unique(k, return_index=True, return_inverse=True, return_counts=True)
+            for g, w in zip(got, want, strict=True):
+                np.testing.assert_array_equal(g, np.asarray(w).reshape(-1))
+            assert len(unique_keys(k, first=False)[1]) == 0
+        _, first = np.unique(cells, axis=0, return_index=True)
+        np.testing.assert_array_equal(first_in_each_cell(cells), np.sort(first))
+    assert all(len(a) == 0 for a in unique_keys(np.zeros(0, dtype=np.int64)))

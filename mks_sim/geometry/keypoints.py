@@ -56,18 +56,54 @@ def cell_keys(cells: NDArray[np.int64]) -> NDArray[np.int64] | None:
     None when the cells span too much for one int64 (then use the rows)."""
     if len(cells) == 0:
         return np.zeros(0, np.int64)
-    rel = cells - cells.min(axis=0)
-    span = rel.max(axis=0) + 1
+    # column by column: numpy reduces an (N, 3) array along axis 0 ~7x slower than its three
+    # columns one by one, and has no BLAS for an integer ``rel @ radix`` (the keys of a
+    # 640 x 480 scan took 24 ms that way, 3 ms this way)
+    x, y, z = (np.asarray(cells[:, d], dtype=np.int64) for d in range(3))
+    lo = [int(c.min()) for c in (x, y, z)]
+    span = [int(c.max()) - low + 1 for c, low in zip((x, y, z), lo, strict=True)]
     if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**62:
         return None
-    return np.asarray(rel @ np.array([span[1] * span[2], span[2], 1], dtype=np.int64))
+    return np.asarray(
+        ((x - lo[0]) * (span[1] * span[2]) + (y - lo[1]) * span[2]) + (z - lo[2]), dtype=np.int64
+    )
+
+
+def unique_keys(
+    keys: NDArray[np.int64], *, first: bool = True
+) -> tuple[NDArray[np.int64], NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+    """``np.unique(keys, return_index=True, return_inverse=True, return_counts=True)`` of
+    1-D integer keys, from one argsort (``np.unique`` sorts for the inverse and again, a
+    stable sort, for the first indices: a stable sort of 307k shuffled int64 keys took
+    3-9x the time of the default sort).
+
+    Returns:
+        ``(unique, first, inverse, counts)``: the sorted distinct keys, the index of the
+        first occurrence of each (empty when ``first`` is False: not computed), the (N,)
+        index of each key's distinct key, and the counts.
+    """
+    keys = np.asarray(keys).reshape(-1)
+    if len(keys) == 0:
+        empty = np.zeros(0, dtype=np.intp)
+        return keys.copy(), empty, empty, empty
+    order = np.argsort(keys)
+    ordered = keys[order]
+    start = np.ones(len(keys), dtype=bool)
+    np.not_equal(ordered[1:], ordered[:-1], out=start[1:])
+    starts = np.flatnonzero(start)
+    inverse = np.empty(len(keys), dtype=np.intp)
+    inverse[order] = np.cumsum(start, dtype=np.intp) - 1
+    # the first occurrence: the smallest index among equal keys (the sort need not be stable)
+    firsts = np.minimum.reduceat(order, starts) if first else np.zeros(0, dtype=np.intp)
+    counts = np.diff(np.append(starts, len(keys)))
+    return ordered[starts], firsts, inverse, counts
 
 
 def first_in_each_cell(cells: NDArray[np.int64]) -> NDArray[np.int64]:
     """Ascending indices of the first row of each distinct (x, y, z) cell in ``cells``."""
     keys = cell_keys(cells)
     if keys is not None:
-        _, first = np.unique(keys, return_index=True)
+        first = unique_keys(keys)[1]
     else:  # cells too far apart for one int64 key each
         _, first = np.unique(cells, axis=0, return_index=True)
     return np.sort(first).astype(np.int64)

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError, MksError
-from mks_sim.geometry.keypoints import cell_keys
+from mks_sim.geometry.keypoints import cell_keys, unique_keys
 from mks_sim.geometry.points import fibonacci_sphere
 from mks_sim.geometry.transforms import make_transform, rotation_from_covariance
 from mks_sim.lowlevel.grouping import Vertexes
@@ -366,7 +366,7 @@ def sphere_centre_hough(
     cells = np.floor(votes / cell).astype(np.int64)
     keys = cell_keys(cells)  # the cells' order, a 1-D sort
     if keys is not None:
-        _, inv, counts = np.unique(keys, return_inverse=True, return_counts=True)
+        _, _, inv, counts = unique_keys(keys, first=False)
     else:
         _, inv, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
     inv = inv.reshape(-1)

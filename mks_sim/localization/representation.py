@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError
-from mks_sim.geometry.keypoints import cell_keys
+from mks_sim.geometry.keypoints import cell_keys, unique_keys
 
 __all__ = [
     "Representation",
@@ -89,7 +89,7 @@ def voxel_average(points: FloatArray, voxel: float) -> FloatArray:
     cells = np.floor(points / voxel).astype(np.int64)
     flat = cell_keys(cells)  # one int64 per cell
     if flat is not None:
-        _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
+        _, _, inverse, counts = unique_keys(flat, first=False)
     else:  # a cloud too wide for one int64 key per cell
         _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
