@@ -277,7 +277,11 @@ def test_fixed_radius_sphere_fit_recovers_the_centre(compiled):
     cap = cap[cap[:, 2] > 0.1]
     pts = centre + radius * cap + rng.normal(0, 0.0004, (len(cap), 3))
     face = np.column_stack(
-        [rng.uniform(0.135, 0.136, 800), rng.uniform(-0.08, -0.02, 800), rng.uniform(0.75, 0.8, 800)]
+        [
+            rng.uniform(0.135, 0.136, 800),
+            rng.uniform(-0.08, -0.02, 800),
+            rng.uniform(0.75, 0.8, 800),
+        ]
     )
     cloud = np.vstack([pts, face])
     tree = cKDTree(cloud)
@@ -305,6 +309,55 @@ def test_corner_correspondences_take_the_first_corner_per_detected_vertex():
     got = _corner_correspondences(j, n)
     assert len(got) == len(j)
     for row, pairs in zip(j, got, strict=True):
-        want = sorted((int(d), int(np.flatnonzero(row == d)[0])) for d in set(row.tolist()) if d < n)
+        want = sorted(
+            (int(d), int(np.flatnonzero(row == d)[0])) for d in set(row.tolist()) if d < n
+        )
         assert [tuple(p) for p in pairs.tolist()] == want
         assert pairs.dtype == np.int64 and pairs.shape[1] == 2
+
+
+def test_pairs_within_groups_what_a_ball_query_finds() -> None:
+    """``_pairs_within`` (one dual-tree search) finds, per query and in query order, the
+    points within ``r`` that a brute-force distance check finds, an exact hit included."""
+    from scipy.spatial import cKDTree
+
+    from mks_sim.localization.verify import _pairs_within
+
+    rng = np.random.default_rng(8)
+    for dim in (2, 3):
+        pts = rng.uniform(0.0, 0.05, size=(600, dim))
+        queries = np.vstack([rng.uniform(0.0, 0.05, size=(200, dim)), pts[:3]])
+        lens, flat = _pairs_within(cKDTree(pts), queries, 0.004)
+        assert lens.shape == (len(queries),) and len(flat) == lens.sum()
+        starts = np.cumsum(lens) - lens
+        for q in range(len(queries)):
+            want = np.flatnonzero(np.linalg.norm(pts - queries[q], axis=1) <= 0.004)
+            got = np.sort(flat[starts[q] : starts[q] + lens[q]])
+            np.testing.assert_array_equal(got, want)
+        assert lens[-3:].min() >= 1  # a query on a point finds it
+    lens, flat = _pairs_within(cKDTree(pts), np.zeros((0, 3)), 0.004)
+    assert len(lens) == 0 and len(flat) == 0
+
+
+def test_distinct_placements_groups_poses_equal_up_to_a_symmetry() -> None:
+    """Poses that differ by a model symmetry share a group, poses a turn or a translation
+    apart do not; each group's first index is the first pose in it."""
+    from scipy.spatial.transform import Rotation
+
+    from mks_sim.geometry.transforms import cube_rotations
+    from mks_sim.localization.hypotheses import _distinct_placements
+
+    syms = cube_rotations()
+    R = Rotation.from_euler("xyz", [20, -35, 50], degrees=True).as_matrix()
+    base = make_transform(R, [0.1, 0.2, 0.3])
+    twin = make_transform(R @ syms[5], [0.1, 0.2, 0.3])  # the same placement of a cube
+    turned = make_transform(
+        R @ Rotation.from_euler("x", 30, degrees=True).as_matrix(), [0.1, 0.2, 0.3]
+    )
+    moved = make_transform(R, [0.12, 0.2, 0.3])
+    first, inverse = _distinct_placements(np.stack([turned, base, twin, moved, base]), syms, 0.002)
+    assert inverse[1] == inverse[2] == inverse[4]
+    assert len({int(inverse[0]), int(inverse[1]), int(inverse[3])}) == 3
+    assert len(first) == 3
+    for g, f in enumerate(first):
+        assert f == np.flatnonzero(inverse == g)[0]

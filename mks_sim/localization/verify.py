@@ -248,6 +248,22 @@ def _flatten(lists: Any) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     return lens, flat
 
 
+def _pairs_within(
+    tree: cKDTree, queries: FloatArray, r: float
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """(lengths, concatenated indices) of the tree's points within ``r`` of each query,
+    grouped by query in query order, as :func:`_flatten` of ``tree.query_ball_point`` gives
+    them (the order within a group may differ): one dual-tree search into an array, about
+    twice as fast as a ball query's Python lists for a thousand queries."""
+    if len(queries) == 0:
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
+    pairs = cKDTree(queries, balanced_tree=False).sparse_distance_matrix(
+        tree, r, output_type="ndarray"
+    )
+    lens = np.bincount(pairs["i"], minlength=len(queries)).astype(np.intp)
+    return lens, pairs["j"][np.argsort(pairs["i"], kind="stable")].astype(np.intp)
+
+
 def consistency(
     T: FloatArray,
     surface_pts: FloatArray,
@@ -312,8 +328,8 @@ def consistency(
             zq = near[rest, 2]
             high = np.flatnonzero(P[:, 2] > zq.min() - d)
             if len(high) >= 2:
-                foot = cKDTree(P[high, :2])
-                lens, flat = _flatten(foot.query_ball_point(near[rest, :2], r=0.5 * d))
+                foot = cKDTree(P[high, :2], balanced_tree=False)
+                lens, flat = _pairs_within(foot, near[rest, :2], 0.5 * d)
                 if lens.sum():
                     grp = np.repeat(np.arange(len(rest)), lens)
                     z = P[high[flat], 2]
@@ -345,9 +361,7 @@ def consistency(
                         ray_z = np.repeat(zq[idx_u] + 1.2 * gap + 0.1 * d, 8)
                         # (over twice the reach: a random sampling of the underside alone
                         # leaves holes wider than the reach of the whole footprint)
-                        lens_h, flat_h = _flatten(
-                            foot.query_ball_point(probe.reshape(-1, 2), r=2.0 * reach)
-                        )
+                        lens_h, flat_h = _pairs_within(foot, probe.reshape(-1, 2), 2.0 * reach)
                         z_min = np.full(len(ray_z), np.inf)  # lowest model sample near each
                         some = lens_h > 0
                         if some.any():
