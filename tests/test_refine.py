@@ -281,3 +281,27 @@ def test_icp_stall_stops_a_sliding_fit_and_keeps_a_converging_one() -> None:
         res = icp_point_to_plane(surface, three, near, max_distance=0.01, stall=stall)
         pos, rot = pose_error(res.matrix, np.eye(4))
         assert pos < 5e-5 and rot < 0.05, (stall, pos, rot)
+
+
+def test_pose_hypothesis_arrays_are_frozen_copies_shared_by_replace() -> None:
+    """A hypothesis copies a caller's arrays (changing them later changes nothing) and makes
+    its own read-only; ``replace`` shares them (nothing to copy); bad shapes are DataErrors."""
+    T = np.eye(4)
+    ref = np.array([[1.0], [2.0], [3.0]])  # (3, 1): taken as (3,)
+    h = PoseHypothesis(T, ref, votes=2, correspondences=[[0, 1]])
+    T[0, 3] = 5.0
+    ref[0, 0] = 9.0
+    assert h.matrix[0, 3] == 0.0 and h.reference_point.tolist() == [1.0, 2.0, 3.0]
+    assert not h.matrix.flags.writeable and not h.reference_point.flags.writeable
+    assert h.correspondences.dtype == np.int64 and h.correspondences.shape == (1, 2)
+    assert PoseHypothesis(np.eye(4), np.zeros(3)).correspondences.shape == (0, 2)
+    scored = dataclasses.replace(h, score=0.5)
+    assert scored.matrix is h.matrix and scored.score == 0.5
+    view = h.matrix[:, :]  # read-only but not owning its data: copied
+    assert PoseHypothesis(view, np.zeros(3)).matrix is not view
+    with pytest.raises(DataError):
+        PoseHypothesis(np.eye(3), np.zeros(3))
+    with pytest.raises(DataError):
+        PoseHypothesis(np.eye(4), np.zeros(4))
+    with pytest.raises(DataError):
+        PoseHypothesis(np.eye(4), np.zeros(3), correspondences=np.zeros((2, 3)))

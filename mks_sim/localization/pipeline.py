@@ -179,7 +179,7 @@ def object_segments(
         return []
     # Components of the kept points over short SPG edges (4 spacings): a sphere set aside
     # no longer bridges the cube it rests on to its other neighbours.
-    adj = sparse.csr_array(rep.graph.adjacency).tocoo()
+    adj = rep.spg_adjacency.tocoo()
     gap = min(rep.gap, 4.0 * rep.spacing) if gap is None else gap
     link = mask[adj.row] & mask[adj.col] & (adj.data <= gap)
     pos = np.full(len(objects), -1, dtype=np.intp)
@@ -889,7 +889,7 @@ def _merge_components(
         return c
 
     members = {c: np.flatnonzero(labels == c) for c in ids}
-    trees = {c: cKDTree(points[members[c]]) for c in ids}
+    trees = {c: cKDTree(points[members[c]], balanced_tree=False) for c in ids}  # distances only
     for a, b in itertools.combinations(ids, 2):
         ra, rb = root(a), root(b)
         if ra == rb:

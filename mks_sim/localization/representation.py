@@ -134,7 +134,7 @@ class Representation:
         points: the points the representation is built on (``raw`` voxel-averaged when
             :attr:`voxel` > 0).
         tree, spacing, noise, voxel, table, table_threshold, object_indices, objects,
-        graph, labels, normals, segmentation.
+        graph, spg_adjacency, labels, normals, segmentation.
     """
 
     def __init__(
@@ -284,8 +284,9 @@ class Representation:
         return SpatialProximityGraph(self.objects, m=self.config.m)
 
     @cached_property
-    def _spg_adjacency(self) -> Any:
-        """The SPG's CSR adjacency (the SPG builds it per access: once here)."""
+    def spg_adjacency(self) -> Any:
+        """The SPG's CSR adjacency, edge lengths as values (the SPG builds it per access:
+        once here; the grouping and the object segments read it)."""
         from scipy import sparse
 
         adj = sparse.csr_array(self.graph.adjacency)
@@ -300,7 +301,7 @@ class Representation:
 
         if len(self.objects) == 0:
             return np.zeros(0, dtype=np.intp)
-        adj = self._spg_adjacency
+        adj = self.spg_adjacency
         joined = sparse.csr_array(
             ((adj.data <= self.gap).astype(np.float64), adj.indices, adj.indptr),
             shape=adj.shape,
@@ -319,7 +320,7 @@ class Representation:
 
         from mks_sim.lowlevel.normals import FixedGraph
 
-        adj = self._spg_adjacency
+        adj = self.spg_adjacency
         lab = self.labels
         row = np.repeat(np.arange(adj.shape[0]), np.diff(adj.indptr))
         same = lab[row] == lab[adj.indices]

@@ -84,7 +84,7 @@ def plane_vertexes(
     if tolerance <= 0:
         raise DataError(f"plane_vertexes: tolerance must be > 0, got {tolerance}")
     planes = [r.plane for r in regions] + list(extra_planes)
-    trees = [cKDTree(pts[r.indices]) for r in regions]
+    trees: dict[int, cKDTree] = {}  # per face with candidates (only distances are asked)
     n_regions = len(regions)
     sin_min = np.sin(np.radians(min_angle_deg))
     cands: list[tuple[FloatArray, tuple[int, int, int]]] = []
@@ -115,6 +115,8 @@ def plane_vertexes(
     for t in range(n_regions):
         mine = [i for i, (_, tr) in enumerate(cands) if t in tr]
         if mine:
+            if t not in trees:
+                trees[t] = cKDTree(pts[regions[t].indices], balanced_tree=False)
             dist, _ = trees[t].query(np.stack([cands[i][0] for i in mine]))
             worst[mine] = np.maximum(worst[mine], dist)
     found = [(v, tr, float(w)) for (v, tr), w in zip(cands, worst) if w <= tolerance]

@@ -14,8 +14,18 @@ from mks_sim.geometry.transforms import to_row_convention
 __all__ = ["PoseHypothesis"]
 
 
-def _frozen(arr: NDArray[np.generic]) -> NDArray[np.generic]:
-    arr = np.array(arr, copy=True)
+def _frozen(value: ArrayLike, dtype: type) -> NDArray[np.generic]:
+    """``value`` as a read-only array of ``dtype`` owning its data: one that is already so
+    (another hypothesis's: ``replace`` builds a new hypothesis from the old one's arrays) is
+    shared, anything else is copied (a caller's array may change later)."""
+    if (
+        type(value) is np.ndarray
+        and value.dtype == dtype
+        and value.base is None
+        and not value.flags.writeable
+    ):
+        return value
+    arr = np.array(value, dtype=dtype, copy=True)
     arr.setflags(write=False)
     return arr
 
@@ -47,22 +57,26 @@ class PoseHypothesis:
     score: float = math.nan
 
     def __post_init__(self) -> None:
-        T = np.asarray(self.matrix, dtype=np.float64)
+        T = _frozen(self.matrix, np.float64)
         if T.shape != (4, 4):
             raise DataError(f"PoseHypothesis.matrix: expected shape (4, 4), got {T.shape}")
-        ref = np.asarray(self.reference_point, dtype=np.float64).reshape(-1)
+        ref = _frozen(self.reference_point, np.float64)
         if ref.shape != (3,):
-            raise DataError(f"PoseHypothesis.reference_point: expected shape (3,), got {ref.shape}")
-        corr = np.asarray(self.correspondences, dtype=np.int64)
-        if corr.size == 0:
-            corr = corr.reshape(0, 2)
+            ref = _frozen(ref.reshape(-1), np.float64)
+            if ref.shape != (3,):
+                raise DataError(
+                    f"PoseHypothesis.reference_point: expected shape (3,), got {ref.shape}"
+                )
+        corr = _frozen(self.correspondences, np.int64)
+        if corr.size == 0 and corr.shape != (0, 2):
+            corr = _frozen(corr.reshape(0, 2), np.int64)
         if corr.ndim != 2 or corr.shape[1] != 2:
             raise DataError(
                 f"PoseHypothesis.correspondences: expected shape (n, 2), got {corr.shape}"
             )
-        object.__setattr__(self, "matrix", _frozen(T))
-        object.__setattr__(self, "reference_point", _frozen(ref))
-        object.__setattr__(self, "correspondences", _frozen(corr))
+        object.__setattr__(self, "matrix", T)
+        object.__setattr__(self, "reference_point", ref)
+        object.__setattr__(self, "correspondences", corr)
         object.__setattr__(self, "votes", int(self.votes))
         object.__setattr__(self, "rmse", float(self.rmse))
         object.__setattr__(self, "score", float(self.score))
