@@ -25,7 +25,7 @@ def _frozen(value: ArrayLike, dtype: type) -> NDArray[np.generic]:
         and not value.flags.writeable
     ):
         return value
-    arr = np.array(value, dtype=dtype, copy=True)
+    arr: NDArray[np.generic] = np.array(value, dtype=dtype, copy=True)
     arr.setflags(write=False)
     return arr
 
