@@ -256,6 +256,25 @@ def test_check_scale_flags_unit_mixups(caplog) -> None:
     assert msg is not None and "--scale 1000" in msg
 
 
+def test_extent_of_a_dense_cloud_matches_its_full_percentile_box() -> None:
+    """``extent`` reads every k-th point of a cloud over 20,000 points: on a 300k-point scan-like
+    cloud (rows of a sheet with a box on it, NaN holes) it is within 1 % of the diagonal of
+    the full cloud's 2nd-98th percentile box."""
+    from mks_sim.io.units import extent
+
+    rng = np.random.default_rng(4)
+    u, v = np.meshgrid(np.linspace(-0.3, 0.3, 600), np.linspace(-0.2, 0.2, 500))
+    z = np.where((np.abs(u) < 0.05) & (np.abs(v) < 0.05), 0.05, 0.0) + rng.normal(0, 3e-4, u.shape)
+    pts = np.column_stack([u.ravel(), v.ravel(), z.ravel()])
+    pts[rng.choice(len(pts), 5000, replace=False)] = np.nan
+    finite = pts[np.all(np.isfinite(pts), axis=1)]
+    lo, hi = np.percentile(finite, [2, 98], axis=0)
+    assert extent(pts) == pytest.approx(float(np.linalg.norm(hi - lo)), rel=0.01)
+    small = finite[:1000]
+    lo, hi = np.percentile(small, [2, 98], axis=0)
+    assert extent(small) == float(np.linalg.norm(hi - lo))  # small clouds: every point
+
+
 # --------------------------------------------------------------------------- issue 12
 
 

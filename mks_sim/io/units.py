@@ -21,8 +21,11 @@ _FACTORS = (1e-3, 1e-2, 2.54e-2, 1.0, 25.4, 1e2, 1e3)  # mm, cm, inch <-> m
 
 
 def extent(points: ArrayLike) -> float:
-    """Robust size of a point set: the diagonal of its 2nd-98th percentile box (NaN-safe)."""
+    """Robust size of a point set: the diagonal of its 2nd-98th percentile box (NaN-safe;
+    over every k-th point of a cloud of more than 20,000: a 640 x 480 scan's box took 7 ms,
+    and it only has to tell millimetres from metres)."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    p = p[:: max(1, len(p) // 20000)]
     p = p[np.all(np.isfinite(p), axis=1)]
     if len(p) < 2:
         return 0.0
