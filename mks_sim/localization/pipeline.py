@@ -68,6 +68,7 @@ from mks_sim.models.refine import (
     score_pose,
     verify_hypotheses,
 )
+from mks_sim.threads import with_one_blas_thread
 
 __all__ = [
     "VISIBLE_FRACTION",
@@ -601,6 +602,7 @@ def _as_localizable(model: Any, scale: float) -> LocalizableModel:
     )
 
 
+@with_one_blas_thread
 def localize_cloud(
     model: Any,
     scene_points: ArrayLike,

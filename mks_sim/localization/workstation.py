@@ -59,6 +59,7 @@ from mks_sim.localization.model import PolyhedralModel, db_for, default_db, mode
 from mks_sim.localization.pipeline import localize_polyhedral, localize_sphere
 from mks_sim.localization.representation import RepresentationConfig
 from mks_sim.models.pose import PoseHypothesis
+from mks_sim.threads import with_one_blas_thread
 
 if TYPE_CHECKING:
     from mks_sim.lowlevel.grouping import Plane
@@ -319,6 +320,7 @@ def localize_freeform(
 # --------------------------------------------------------------------------- the flow
 
 
+@with_one_blas_thread
 def localize_object(
     world: Any,
     object_name: str,
