@@ -10,7 +10,10 @@ BLAS thread, the medians unchanged). One thread gives the same products (the spl
 rows, not over the sums).
 
 Uses ``threadpoolctl`` (the library scikit-learn uses for the same thing); the limit is
-undone when the block ends, so a caller's own BLAS settings are kept.
+undone when the block ends, so a caller's own BLAS settings are kept. The limit is
+process-wide: localizations run in several threads of one process at once would restore
+each other's settings out of order (the package runs them in processes: ``--workers``,
+Ray).
 """
 
 from __future__ import annotations
