@@ -343,7 +343,8 @@ class Pick:
         believed: what the robot concluded (two-sided touch while lifting).
         failure: why it failed ("" on success): ``no grasp``, ``unreachable`` (pre-grasp
             out of reach, or the descent blocked),
-            ``no two-sided contact``, ``closed on nothing``, ``slipped``, ``not in the box``.
+            ``no two-sided contact``, ``closed on nothing``, ``slipped``, ``not in the box``;
+            ``pushed``: no pick but a push of a part away from a wall (:func:`plan_push`).
         time_s: wall-clock seconds: sensing + localization + planning + motion.
         perception_s: of which sensing + localization.
         views: sensing views used for the pick.
@@ -829,7 +830,11 @@ def clear_bin(
 
     Stops when nothing is found, no instance found has a collision-free grasp, or
     ``budget`` picks were tried. A failed pick is recorded with its reason and the loop goes
-    on (the instance it failed on is tried last next time).
+    on (the instance it failed on is tried last next time). When no instance has a grasp
+    but one with an antipodal pair lies against a wall, it is pushed away from the wall
+    (:func:`plan_push`, at most :data:`PUSHES_PER_INSTANCE` times per part and
+    :data:`PUSHES_PER_BIN` per bin), recorded as a pick that failed ``pushed``, and the bin
+    is sensed again.
 
     Args:
         world: the bin world (:func:`bin_world`).
@@ -844,7 +849,8 @@ def clear_bin(
 
     Returns:
         ``{"present", "picked", "cleared_fraction", "picks": [Pick.to_json()], "time_s",
-        "stopped"}`` (``picked``, ``present``, ``success`` are evaluation from ground truth).
+        "stopped", "pushes"}`` (``picked``, ``present``, ``success`` are evaluation from
+        ground truth).
     """
     from dm_control.rl.control import PhysicsError
 
@@ -858,6 +864,7 @@ def clear_bin(
     failed_at: list[np.ndarray] = []
     picks: list[Pick] = []
     retries = 0
+    pushed: list[np.ndarray] = []  # (2, 3) per push: the part's estimated origin, and + push
     stopped = "budget spent"
     while len(picks) < budget:
         t0 = time.perf_counter()
@@ -888,6 +895,27 @@ def clear_bin(
             chosen, blocked, no_pair = _choose_grasp(
                 robot.grasps, order, near_failed, robot.clear_of_neighbours
             )
+        if chosen is None and len(pushed) < PUSHES_PER_BIN:
+            # a part against a wall: push it away with the closed hand, sense again
+            push = _push_candidate(robot, found, order, pushed)
+            if push is not None:
+                i, plan = push
+                body = robot.body_of(found[i].matrix)  # evaluation only (the report)
+                try:
+                    _push(robot.ctl, plan, robot.home_pos, robot.home_yaw)
+                    world.step(100)  # the pushed part comes to rest
+                except PhysicsError as exc:
+                    stopped = f"simulation failed: {exc}"
+                pushed.append(_pushed_from_to(found[i].matrix, plan))
+                dt = time.perf_counter() - t0
+                success = body is not None and in_output_box(world, body)
+                picks.append(
+                    Pick(i, success, False, "" if success else PUSHED, dt, robot.perception_s,
+                         robot.views, float(found[i].score), body)
+                )  # fmt: skip
+                if stopped.startswith("simulation failed"):
+                    break
+                continue
         if chosen is None:
             why = f"no grasp ({blocked} blocked by obstacles, {no_pair} without a pair)"
             dt = time.perf_counter() - t0
@@ -935,6 +963,7 @@ def clear_bin(
         "picks": [p.to_json() for p in picks],
         "time_s": round(time.perf_counter() - t_start, 3),
         "stopped": stopped,
+        "pushes": len(pushed),
         **fault_fields(
             robot.faults_seen, robot.sensed.provenance if robot.sensed is not None else {}
         ),
@@ -1444,6 +1473,172 @@ def _carry_to_box(
     ctl.move_to(over, yaw, spacing_m=0.02, rotation=rotation)
     ctl.move_to(np.array([over[0], over[1], release_z]), yaw, spacing_m=0.01, rotation=rotation)
     return "" if _held(ctl) else "dropped while carried"
+
+
+# -- a push away from the wall (the closed hand as a paddle) ---------------------------------
+#: A part whose estimated footprint (the model's vertices posed at its estimate) comes this
+#: close to a wall's inner face is pushed when no grasp is left: the open fingers need about
+#: 22 mm beside it (grasp.FINGER_CLEARANCE_M), the "touch" round 7 mm plus the finger's back.
+PUSH_NEAR_WALL_M = 0.025
+#: The closed hand comes down this far inside the part's edge nearest the wall: the closed
+#: fingers reach 15 mm on either side of the pinch point along the closing axis (measured:
+#: the hand closed in free air at 1.31-1.35 rad, the fingers' collision boxes), and 5 mm more
+#: keep them off the wall's top.
+PUSH_INSET_M = 0.02
+#: ... then moves this far toward the bin's middle (the part's footprint must come away
+#: from the wall by more than the open fingers' clearance, 22 mm, and its own slip).
+PUSH_DISTANCE_M = 0.05
+#: The closed fingertips reach this far below the pinch point (measured as above: 10.2 mm)...
+CLOSED_TIPS_BELOW_PINCH_M = 0.010
+#: ... and their footprint's middle is this far along the pinch frame's y from it (fingers 2
+#: and 3 at y = -44 and +15 mm, finger 1 between: -44.6 .. +15.3 mm measured).
+CLOSED_TIPS_MIDDLE_Y_M = -0.0147
+#: The fingertips are brought this far below the part's estimated top where they come down
+#: (the arm is position-controlled: the offset is the press). Tuning bin 7's last part (its
+#: stall replayed; upside down, leaning on the -x wall, top 48 mm high there): pressed 6 mm,
+#: the hand slid over it and it moved 2 mm; pressed 15 mm, it lay down flat and moved 19 mm
+#: off the wall, and the next sensing had grasps ("tight" round: 2, "touch": 4).
+PUSH_PRESS_M = 0.015
+#: The part's top where the hand comes down: its estimated surface within this distance
+#: across (xy) of the hand's middle.
+PUSH_TOP_RADIUS_M = 0.015
+#: The hand comes down from this far above where it presses.
+PUSH_ABOVE_M = 0.04
+#: The far side of a pushed part stops this far from the opposite wall.
+PUSH_FAR_MARGIN_M = 0.03
+#: At most this many pushes of one part (an instance within PUSH_SAME_M of where an earlier
+#: push started or was to end is the same part) and of one bin: each is a pick of the budget.
+PUSHES_PER_INSTANCE = 2
+PUSHES_PER_BIN = 4
+PUSH_SAME_M = 0.03
+#: The failure reason of a push in the picks' record (a push is no pick, but it is one of
+#: the budget's).
+PUSHED = "pushed"
+
+
+@dataclass(frozen=True)
+class PushPlan:
+    """A push of a part away from the bin's walls with the closed hand, top-down.
+
+    Attributes:
+        direction: (2,) unit world xy direction of the push (away from the walls near it).
+        start_world: (3,) the pinch point where the closed hand presses on the part, metres.
+        end_world: (3,) where the push ends (``start_world`` moved along ``direction``).
+        yaw_rad: the hand's yaw (its closing axis along ``direction``: the closed fingers'
+            60 mm wide side across the push).
+        wall_gap_m: the part's footprint's distance from the nearest wall, metres.
+    """
+
+    direction: np.ndarray
+    start_world: np.ndarray
+    end_world: np.ndarray
+    yaw_rad: float
+    wall_gap_m: float
+
+
+def bin_walls_xy(world: World) -> tuple[np.ndarray, np.ndarray]:
+    """((2,) lo, (2,) hi) world xy of the bin walls' inner faces: the scene's declared region
+    (scene data, as :func:`bin_roi`)."""
+    (cx, cy), (hx, hy) = world.scene.region_center_xy, world.scene.region_half_xy
+    return np.array([cx - hx, cy - hy]), np.array([cx + hx, cy + hy])
+
+
+def plan_push(
+    part_world: np.ndarray, walls_lo: np.ndarray, walls_hi: np.ndarray, table_z: float
+) -> PushPlan | None:
+    """A push of a part away from the walls within :data:`PUSH_NEAR_WALL_M` of it, or None
+    when no wall is that near.
+
+    Args:
+        part_world: (N, 3) the part's surface (the model's vertices posed at its estimate),
+            world, metres.
+        walls_lo, walls_hi: (2,) xy of the walls' inner faces (:func:`bin_walls_xy`).
+        table_z: the bin's floor, metres.
+
+    The direction is the sum of the near walls' inward normals (a corner: diagonal); the
+    closed hand comes down :data:`PUSH_INSET_M` inside the part's edge on the walls' side,
+    its fingertips :data:`PUSH_PRESS_M` below the part's estimated top there, and moves
+    :data:`PUSH_DISTANCE_M` along the direction (less when the part's far side would come
+    within :data:`PUSH_FAR_MARGIN_M` of the opposite wall).
+    """
+    P = np.asarray(part_world, dtype=float)
+    lo, hi = np.asarray(walls_lo, dtype=float), np.asarray(walls_hi, dtype=float)
+    xy_lo, xy_hi = P[:, :2].min(axis=0), P[:, :2].max(axis=0)
+    gaps = np.array([xy_lo[0] - lo[0], hi[0] - xy_hi[0], xy_lo[1] - lo[1], hi[1] - xy_hi[1]])
+    normals = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    near = gaps < PUSH_NEAR_WALL_M
+    if not near.any():
+        return None
+    d = normals[near].sum(axis=0)
+    if np.linalg.norm(d) < 1e-9:  # between two opposite walls: nowhere to go
+        return None
+    d /= np.linalg.norm(d)
+    across = np.array([-d[1], d[0]])
+    s, t = P[:, :2] @ d, P[:, :2] @ across
+    # room ahead: the far side's distance to the walls ahead, along d
+    ahead = [(hi - xy_hi)[k] / d[k] if d[k] > 1e-9 else (xy_lo - lo)[k] / -d[k] if d[k] < -1e-9
+             else np.inf for k in range(2)]  # fmt: skip
+    distance = float(np.clip(min(ahead) - PUSH_FAR_MARGIN_M, 0.0, PUSH_DISTANCE_M))
+    if distance <= 0.0:
+        return None
+    middle = (s.min() + PUSH_INSET_M) * d + 0.5 * (t.min() + t.max()) * across  # (2,)
+    top = P[np.linalg.norm(P[:, :2] - middle, axis=1) < PUSH_TOP_RADIUS_M, 2]
+    top_z = float(top.max()) if len(top) else float(P[:, 2].max())
+    tips_z = max(top_z - PUSH_PRESS_M, table_z + 0.003)
+    yaw = float(np.arctan2(d[1], d[0]))
+    # the pinch point: the closed fingertips' middle is CLOSED_TIPS_MIDDLE_Y_M along the
+    # pinch frame's y, which is (sin yaw, -cos yaw) for a top-down hand (grasp.down_rotation)
+    y_axis = np.array([np.sin(yaw), -np.cos(yaw)])
+    pinch_xy = middle - CLOSED_TIPS_MIDDLE_Y_M * y_axis
+    start = np.array([*pinch_xy, tips_z + CLOSED_TIPS_BELOW_PINCH_M])
+    end = start + np.array([*(distance * d), 0.0])
+    return PushPlan(d, start, end, yaw, float(gaps[near].min()))
+
+
+def _pushed_from_to(T: np.ndarray, plan: PushPlan) -> np.ndarray:
+    """(2, 3) a pushed part's estimated origin before the push and where it was pushed to."""
+    start = np.asarray(T, dtype=float)[:3, 3]
+    return np.stack([start, start + (plan.end_world - plan.start_world)])
+
+
+def _push_candidate(
+    robot: BinPicker, found: Sequence[Any], order: Sequence[int], pushed: Sequence[np.ndarray]
+) -> tuple[int, PushPlan] | None:
+    """The first instance in ``order`` that has an antipodal pair (with no obstacles), lies
+    within :data:`PUSH_NEAR_WALL_M` of a wall and was pushed fewer than
+    :data:`PUSHES_PER_INSTANCE` times (an earlier push started or was to end within
+    :data:`PUSH_SAME_M` of its estimated origin), and its push; or None. Only the estimate,
+    the model and the walls (scene data) are used."""
+    walls_lo, walls_hi = bin_walls_xy(robot.world)
+    V = np.asarray(robot.obj.mesh.vertices, dtype=float)
+    for i in order:
+        T = found[i].matrix
+        near = sum(bool(np.any(np.linalg.norm(p - T[:3, 3], axis=1) < PUSH_SAME_M)) for p in pushed)
+        if near >= PUSHES_PER_INSTANCE or not robot.grasps(i, obstacles="none"):
+            continue
+        plan = plan_push(V @ T[:3, :3].T + T[:3, 3], walls_lo, walls_hi, robot.table_z)
+        if plan is not None:
+            return i, plan
+    return None
+
+
+def _push(ctl: Any, plan: PushPlan, home_pos: np.ndarray, home_yaw: float) -> bool:
+    """Close the hand, come down on the part, push it along ``plan``, lift and go home.
+    Returns whether the hand reached where it presses (the push itself is judged by the next
+    sensing)."""
+    ctl.preshape(1.35, 30)  # closed: the fingers as one paddle
+    above = plan.start_world + np.array([0.0, 0.0, PUSH_ABOVE_M])
+    over = np.array([*above[:2], max(above[2], ctl.pinch_pos()[2])])
+    ctl.move_to(over, plan.yaw_rad, spacing_m=0.03)
+    ctl.move_to(above, plan.yaw_rad, spacing_m=0.02)
+    down = ctl.move_to(plan.start_world, plan.yaw_rad, spacing_m=0.005)
+    pressed = down or float(np.linalg.norm(ctl.pinch_pos() - plan.start_world)) < 0.02
+    ctl.move_to(plan.end_world, plan.yaw_rad, spacing_m=0.003)
+    up = ctl.pinch_pos() + np.array([0.0, 0.0, PUSH_ABOVE_M])
+    ctl.move_to(up, plan.yaw_rad, spacing_m=0.01)
+    ctl.open(25)
+    ctl.move_to(home_pos, home_yaw, spacing_m=0.03)
+    return pressed
 
 
 def run_clear_bin(

@@ -1,0 +1,283 @@
+"""A push away from the wall (issue 13): a part no grasp can reach beside a bin wall is
+pushed toward the bin's middle with the closed hand (``mks_sim.tasks.bin.plan_push``)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from mks_sim.tasks import bin as binmod
+from mks_sim.tasks.bin import plan_push
+
+# the bin of worlds/bin.toml: the walls' inner faces (scene region 340 x 260 mm)
+WALLS_LO, WALLS_HI = np.array([-0.17, -0.13]), np.array([0.17, 0.13])
+TABLE_Z = 0.75
+
+
+def _box(lo, hi):
+    """(8, 3) the corners of an axis-aligned box."""
+    return np.array(
+        [[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+    )
+
+
+def _tips_middle(plan):
+    """(2,) the closed fingertips' middle under the pinch point (the pinch frame's y is
+    (sin yaw, -cos yaw) for a top-down hand)."""
+    y_axis = np.array([np.sin(plan.yaw_rad), -np.cos(plan.yaw_rad)])
+    return plan.start_world[:2] + binmod.CLOSED_TIPS_MIDDLE_Y_M * y_axis
+
+
+def test_a_part_against_the_minus_x_wall_is_pushed_toward_plus_x():
+    """A 60 x 100 x 30 mm box 5 mm from the -x wall: pushed along +x, the closed fingertips'
+    middle PUSH_INSET_M inside its edge at the wall, in the middle of its length, pressing
+    PUSH_PRESS_M into its top; 50 mm (room ahead: 250 mm)."""
+    part = _box((-0.165, -0.05, TABLE_Z), (-0.105, 0.05, TABLE_Z + 0.03))
+    plan = plan_push(part, WALLS_LO, WALLS_HI, TABLE_Z)
+    assert plan is not None
+    np.testing.assert_allclose(plan.direction, [1.0, 0.0], atol=1e-12)
+    assert plan.wall_gap_m == pytest.approx(0.005)
+    np.testing.assert_allclose(_tips_middle(plan), [-0.165 + binmod.PUSH_INSET_M, 0.0], atol=1e-9)
+    tips_z = plan.start_world[2] - binmod.CLOSED_TIPS_BELOW_PINCH_M
+    assert tips_z == pytest.approx(TABLE_Z + 0.03 - binmod.PUSH_PRESS_M)
+    np.testing.assert_allclose(plan.end_world - plan.start_world, [0.05, 0.0, 0.0], atol=1e-12)
+    # the closing axis along the push: the closed fingers' wide side across it
+    np.testing.assert_allclose([np.cos(plan.yaw_rad), np.sin(plan.yaw_rad)], [1.0, 0.0], atol=1e-12)
+    # the closed fingers (15 mm either side of the pinch point along the closing axis) keep
+    # off the wall
+    assert plan.start_world[0] - 0.015 > WALLS_LO[0]
+
+
+def test_a_part_in_the_middle_is_not_pushed():
+    part = _box((-0.03, -0.05, TABLE_Z), (0.03, 0.05, TABLE_Z + 0.03))
+    assert plan_push(part, WALLS_LO, WALLS_HI, TABLE_Z) is None
+    # just beyond the near-wall distance from the +y wall: no push; just within: pushed -y
+    gap = binmod.PUSH_NEAR_WALL_M
+    far = _box((-0.03, 0.0, TABLE_Z), (0.03, 0.13 - gap - 0.001, TABLE_Z + 0.03))
+    assert plan_push(far, WALLS_LO, WALLS_HI, TABLE_Z) is None
+    near = _box((-0.03, 0.0, TABLE_Z), (0.03, 0.13 - gap + 0.001, TABLE_Z + 0.03))
+    plan = plan_push(near, WALLS_LO, WALLS_HI, TABLE_Z)
+    assert plan is not None
+    np.testing.assert_allclose(plan.direction, [0.0, -1.0], atol=1e-12)
+
+
+def test_a_part_in_a_corner_is_pushed_diagonally_out_of_it():
+    part = _box((0.10, 0.07, TABLE_Z), (0.16, 0.12, TABLE_Z + 0.03))  # +x, +y corner
+    plan = plan_push(part, WALLS_LO, WALLS_HI, TABLE_Z)
+    assert plan is not None
+    np.testing.assert_allclose(plan.direction, [-np.sqrt(0.5), -np.sqrt(0.5)], atol=1e-12)
+    assert plan.wall_gap_m == pytest.approx(0.01)
+
+
+def test_a_push_stops_short_of_the_opposite_wall():
+    """A bin 120 mm across x and a 60 mm part against its -x wall: 60 mm of room ahead,
+    PUSH_FAR_MARGIN_M of it kept, the push is shorter than PUSH_DISTANCE_M."""
+    lo, hi = np.array([-0.06, -0.13]), np.array([0.06, 0.13])
+    part = _box((-0.06, -0.05, TABLE_Z), (0.0, 0.05, TABLE_Z + 0.03))
+    plan = plan_push(part, lo, hi, TABLE_Z)
+    assert plan is not None
+    length = float(np.linalg.norm(plan.end_world - plan.start_world))
+    assert length == pytest.approx(0.06 - binmod.PUSH_FAR_MARGIN_M)
+    assert length < binmod.PUSH_DISTANCE_M
+    # no room at all: no push
+    wide = _box((-0.06, -0.05, TABLE_Z), (0.06 - binmod.PUSH_FAR_MARGIN_M, 0.05, TABLE_Z + 0.03))
+    assert plan_push(wide, lo, hi, TABLE_Z) is None
+
+
+def test_a_push_goes_away_from_the_nearest_wall_for_turned_parts():
+    """Property over random turns and places of a 100 x 60 x 30 mm box: a push exactly
+    when a wall is within PUSH_NEAR_WALL_M of its corners; then away from every such wall,
+    the hand coming down over the part's footprint (brute force over the corners)."""
+    rng = np.random.default_rng(0)
+    part = _box((-0.05, -0.03, 0.0), (0.05, 0.03, 0.03))
+    normals = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    pushed = 0
+    for _ in range(300):
+        a = rng.uniform(-np.pi, np.pi)
+        R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0, 0, 1.0]])
+        P = part @ R.T
+        P[:, :2] += rng.uniform(WALLS_LO - P[:, :2].min(0), WALLS_HI - P[:, :2].max(0))
+        P[:, 2] += TABLE_Z
+        gaps = np.array([
+            P[:, 0].min() - WALLS_LO[0], WALLS_HI[0] - P[:, 0].max(),
+            P[:, 1].min() - WALLS_LO[1], WALLS_HI[1] - P[:, 1].max(),
+        ])  # fmt: skip
+        plan = plan_push(P, WALLS_LO, WALLS_HI, TABLE_Z)
+        if gaps.min() >= binmod.PUSH_NEAR_WALL_M:
+            assert plan is None
+            continue
+        assert plan is not None
+        pushed += 1
+        near = gaps < binmod.PUSH_NEAR_WALL_M
+        assert np.all(normals[near] @ plan.direction > 0.0), (gaps, plan.direction)
+        assert plan.wall_gap_m == pytest.approx(gaps.min())
+        assert (
+            0.0
+            < np.linalg.norm(plan.end_world - plan.start_world)
+            <= binmod.PUSH_DISTANCE_M + 1e-12
+        )
+        tips = _tips_middle(plan)
+        assert np.all(tips >= P[:, :2].min(0) - 1e-9) and np.all(tips <= P[:, :2].max(0) + 1e-9)
+    assert pushed > 20
+
+
+def _stub_clear_bin(monkeypatch, moves: bool):
+    """clear_bin with a stub robot: one part 5 mm from the -x wall, a pair only without
+    obstacles; a push moves it to the middle (``moves``) or leaves it where it was."""
+    part = _box((-0.05, -0.03, 0.0), (0.05, 0.03, 0.03))
+    robots: list = []
+    pushes: list = []
+
+    class Robot:
+        def __init__(self, world, devices, **kw):
+            robots.append(self)
+            self.world, self.bodies, self.table_z = world, ["part"], 0.0
+            self.failed_grasps: list = []
+            self.retry_failed = False
+            self.in_box = False
+            self.at = np.array([-0.115, 0.0, 0.0])  # 5 mm from the -x wall
+            self.sensed = SimpleNamespace(provenance={})
+            self.perception_s = self.last_tilt_deg = 0.0
+            self.views, self.faults_seen = 1, {}
+            self.obj = SimpleNamespace(mesh=SimpleNamespace(vertices=part))
+            self.ctl, self.home_pos, self.home_yaw = None, np.zeros(3), 0.0
+
+        def sense(self):
+            T = np.eye(4)
+            T[:3, 3] = self.at
+            return [] if self.in_box else [SimpleNamespace(matrix=T, score=1.0)]
+
+        def grasps(self, i, obstacles="all"):
+            free = self.at[0] > -0.1
+            return ["grasp"] if obstacles == "none" or free else []
+
+        def clear_of_neighbours(self, i, cands):
+            return list(cands)
+
+        def pick(self, cands, index, perturb, instance=None):
+            self.in_box = True
+            return True, ""
+
+        def body_of(self, T):
+            return "part"
+
+        def picked(self):
+            return int(self.in_box)
+
+    def push(ctl, plan, home_pos, home_yaw):
+        pushes.append(plan)
+        if moves:
+            robots[-1].at = np.array([0.0, 0.0, 0.0])
+        return True
+
+    monkeypatch.setattr(binmod, "BinPicker", Robot)
+    monkeypatch.setattr(binmod, "bin_walls_xy", lambda world: (WALLS_LO, WALLS_HI))
+    monkeypatch.setattr(binmod, "_push", push)
+    monkeypatch.setattr(binmod, "covered_points", lambda *a: 0)
+    monkeypatch.setattr(binmod, "in_output_box", lambda world, body: robots[-1].in_box)
+    monkeypatch.setattr(binmod, "fault_fields", lambda *a: {}, raising=False)
+    return binmod.clear_bin(SimpleNamespace(step=lambda n: None), {}), pushes
+
+
+def test_a_push_that_frees_a_grasp_is_followed_by_the_pick(monkeypatch):
+    rec, pushes = _stub_clear_bin(monkeypatch, moves=True)
+    assert [p["failure"] for p in rec["picks"]] == [binmod.PUSHED, ""], rec
+    assert rec["pushes"] == 1 and rec["picked"] == 1 and rec["stopped"] == "nothing found"
+    np.testing.assert_allclose(pushes[0].direction, [1.0, 0.0])
+
+
+def test_a_part_that_stays_at_the_wall_is_pushed_at_most_twice(monkeypatch):
+    rec, pushes = _stub_clear_bin(monkeypatch, moves=False)
+    assert len(pushes) == binmod.PUSHES_PER_INSTANCE == rec["pushes"]
+    assert [p["failure"] for p in rec["picks"]][:-1] == [binmod.PUSHED] * len(pushes)
+    assert rec["stopped"] == "no collision-free grasp for any instance found", rec
+
+
+@pytest.mark.slow
+def test_a_part_leaning_on_the_wall_is_pushed_off_it_and_has_a_grasp():
+    """Tuning bin 7's last part (its stall replayed): upside down, leaning on the -x wall,
+    no grasp even at the grazing clearance. The push (planned from its estimate) moves it
+    away from the wall by more than 10 mm (ground truth: the true pose's footprint) and
+    the next sensing finds a grasp."""
+    from _bin_replay import replayed_bin
+
+    from mks_sim.sim import truth
+
+    with replayed_bin(7, _BIN7_QPOS) as robot:
+        found = robot.sense()
+        push = binmod._push_candidate(robot, found, range(len(found)), [])
+        assert push is not None
+        i, plan = push
+        assert not robot.grasps(i, obstacles="touch")  # the stall
+        np.testing.assert_allclose(plan.direction, [1.0, 0.0], atol=1e-6)
+        body = robot.body_of(found[i].matrix)
+        V = np.asarray(robot.obj.mesh.vertices)
+
+        def true_gap():
+            T = truth.object_to_world(robot.world, body)
+            return float((V @ T[:3, :3].T + T[:3, 3])[:, 0].min() - WALLS_LO[0])
+
+        before = true_gap()
+        binmod._push(robot.ctl, plan, robot.home_pos, robot.home_yaw)
+        robot.world.step(100)
+        assert true_gap() > before + 0.01, (before, true_gap())
+        found = robot.sense()
+        j = min(range(len(found)), key=lambda k: found[k].matrix[0, 3])  # nearest the -x wall
+        assert robot.grasps(j, obstacles="tight") or robot.grasps(j, obstacles="touch")
+
+
+_BIN7_QPOS = (
+    -1.10739803,
+    2.78866755,
+    1.17070855,
+    3.7252577,
+    -1.84581365,
+    4.18518774,
+    0.14960304,
+    0.149602939,
+    0.149602945,
+    -0.274255733,
+    0.215448717,
+    0.780196449,
+    0.00936187834,
+    -0.0496756877,
+    0.998720735,
+    -0.0012550407,
+    -0.313887884,
+    0.159518178,
+    0.781183357,
+    -0.18014739,
+    0.982769163,
+    0.0405856517,
+    -0.00803082696,
+    -0.123019404,
+    -0.0174902877,
+    0.781367163,
+    0.142716562,
+    -0.770961831,
+    -0.599293859,
+    0.161544757,
+    -0.414609835,
+    0.161617954,
+    0.802072289,
+    -0.572744872,
+    -0.0275283711,
+    -0.35762414,
+    0.737095974,
+    -0.275035543,
+    0.161473152,
+    0.82341029,
+    0.0823469211,
+    -0.666972504,
+    -0.289752789,
+    0.681476328,
+    -0.345745886,
+    0.204180423,
+    0.780827853,
+    0.944134118,
+    -0.23420971,
+    0.0929170902,
+    -0.212421736,
+)
