@@ -364,6 +364,7 @@ def test_a_bin_stalled_on_grasps_that_failed_tries_them_again(monkeypatch):
             return int(self.in_box)
 
     monkeypatch.setattr(binmod, "BinPicker", Robot)
+    monkeypatch.setattr(binmod, "_push_candidate", lambda *a: None)  # the stub has no walls
     monkeypatch.setattr(binmod, "covered_points", lambda *a: 0)
     monkeypatch.setattr(binmod, "in_output_box", lambda world, body: robots[-1].in_box)
     monkeypatch.setattr(binmod, "fault_fields", lambda *a: {}, raising=False)

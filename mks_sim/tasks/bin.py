@@ -908,10 +908,9 @@ def clear_bin(
                     stopped = f"simulation failed: {exc}"
                 pushed.append(_pushed_from_to(found[i].matrix, plan))
                 dt = time.perf_counter() - t0
-                success = body is not None and in_output_box(world, body)
                 picks.append(
-                    Pick(i, success, False, "" if success else PUSHED, dt, robot.perception_s,
-                         robot.views, float(found[i].score), body)
+                    Pick(i, False, False, PUSHED, dt, robot.perception_s, robot.views,
+                         float(found[i].score), body)
                 )  # fmt: skip
                 if stopped.startswith("simulation failed"):
                     break
