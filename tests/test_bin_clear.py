@@ -319,6 +319,7 @@ def test_a_bin_stalled_on_grasps_that_failed_tries_them_again(monkeypatch):
     from types import SimpleNamespace
 
     import numpy as np
+    from _bin_stubs import StubPicker, patch_loop
 
     from mks_sim.tasks import bin as binmod
 
@@ -326,7 +327,7 @@ def test_a_bin_stalled_on_grasps_that_failed_tries_them_again(monkeypatch):
     reach_on = {"try": 2}  # the arm reaches the grasp on its second try
     robots: list = []
 
-    class Robot:
+    class Robot(StubPicker):
         def __init__(self, world, devices, **kw):
             robots.append(self)
             self.bodies = ["part"]
@@ -346,9 +347,6 @@ def test_a_bin_stalled_on_grasps_that_failed_tries_them_again(monkeypatch):
 
         _untried = binmod.BinPicker._untried
 
-        def clear_of_neighbours(self, i, cands):
-            return list(cands)
-
         def pick(self, cands, index, perturb, instance=None):
             self.tries += 1
             if self.tries < reach_on["try"]:
@@ -357,17 +355,8 @@ def test_a_bin_stalled_on_grasps_that_failed_tries_them_again(monkeypatch):
             self.in_box = True
             return True, ""
 
-        def body_of(self, T):
-            return "part"
-
-        def picked(self):
-            return int(self.in_box)
-
-    monkeypatch.setattr(binmod, "BinPicker", Robot)
+    patch_loop(monkeypatch, binmod, Robot, robots)
     monkeypatch.setattr(binmod, "_push_candidate", lambda *a: None)  # the stub has no walls
-    monkeypatch.setattr(binmod, "covered_points", lambda *a: 0)
-    monkeypatch.setattr(binmod, "in_output_box", lambda world, body: robots[-1].in_box)
-    monkeypatch.setattr(binmod, "fault_fields", lambda *a: {}, raising=False)
     rec = binmod.clear_bin(None, {})
     assert [p["failure"][:11] for p in rec["picks"]] == ["unreachable", ""]
     assert rec["picked"] == 1 and rec["stopped"] == "nothing found", rec

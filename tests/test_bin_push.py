@@ -7,6 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from _bin_stubs import StubPicker, patch_loop
 
 from mks_sim.tasks import bin as binmod
 from mks_sim.tasks.bin import plan_push
@@ -130,7 +131,7 @@ def _stub_clear_bin(monkeypatch, moves: bool):
     robots: list = []
     pushes: list = []
 
-    class Robot:
+    class Robot(StubPicker):
         def __init__(self, world, devices, **kw):
             robots.append(self)
             self.world, self.bodies, self.table_z = world, ["part"], 0.0
@@ -153,18 +154,9 @@ def _stub_clear_bin(monkeypatch, moves: bool):
             free = self.at[0] > -0.1
             return ["grasp"] if obstacles == "none" or free else []
 
-        def clear_of_neighbours(self, i, cands):
-            return list(cands)
-
         def pick(self, cands, index, perturb, instance=None):
             self.in_box = True
             return True, ""
-
-        def body_of(self, T):
-            return "part"
-
-        def picked(self):
-            return int(self.in_box)
 
     def push(ctl, plan, home_pos, home_yaw):
         pushes.append(plan)
@@ -172,12 +164,9 @@ def _stub_clear_bin(monkeypatch, moves: bool):
             robots[-1].at = np.array([0.0, 0.0, 0.0])
         return True
 
-    monkeypatch.setattr(binmod, "BinPicker", Robot)
+    patch_loop(monkeypatch, binmod, Robot, robots)
     monkeypatch.setattr(binmod, "bin_walls_xy", lambda world: (WALLS_LO, WALLS_HI))
     monkeypatch.setattr(binmod, "_push", push)
-    monkeypatch.setattr(binmod, "covered_points", lambda *a: 0)
-    monkeypatch.setattr(binmod, "in_output_box", lambda world, body: robots[-1].in_box)
-    monkeypatch.setattr(binmod, "fault_fields", lambda *a: {}, raising=False)
     return binmod.clear_bin(SimpleNamespace(step=lambda n: None), {}), pushes
 
 

@@ -1,0 +1,36 @@
+"""A stub robot for tests of the ``clear_bin`` loop alone (no simulator): the methods every
+such stub shares, and the evaluation hooks patched to read its state."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+
+class StubPicker:
+    """What a stub :class:`~mks_sim.tasks.bin.BinPicker` answers alike in every loop test:
+    neighbours never block, the one body is ``part``, and it counts as picked once
+    ``in_box``. Subclasses set ``in_box`` and define ``sense``, ``grasps`` and ``pick``."""
+
+    in_box = False
+
+    def clear_of_neighbours(self, i: int, cands: list[Any]) -> list[Any]:
+        return list(cands)
+
+    def body_of(self, T: Any) -> str:
+        return "part"
+
+    def picked(self) -> int:
+        return int(self.in_box)
+
+
+def patch_loop(
+    monkeypatch: pytest.MonkeyPatch, binmod: Any, robot_class: type, robots: list
+) -> None:
+    """``clear_bin`` builds ``robot_class``; nothing is covered, the box holds the part when
+    the last robot says so, and no fault fields are reported."""
+    monkeypatch.setattr(binmod, "BinPicker", robot_class)
+    monkeypatch.setattr(binmod, "covered_points", lambda *a: 0)
+    monkeypatch.setattr(binmod, "in_output_box", lambda world, body: robots[-1].in_box)
+    monkeypatch.setattr(binmod, "fault_fields", lambda *a: {}, raising=False)
