@@ -481,3 +481,24 @@ def test_unique_keys_is_numpys_unique_of_the_keys() -> None:
         _, first = np.unique(cells, axis=0, return_index=True)
         np.testing.assert_array_equal(first_in_each_cell(cells), np.sort(first))
     assert all(len(a) == 0 for a in unique_keys(np.zeros(0, dtype=np.int64)))
+
+
+def test_unique_cells_is_numpys_unique_of_the_rows() -> None:
+    """``unique_cells`` gives ``np.unique(cells, axis=0, ...)``'s first indices, inverse and
+    counts, by int64 keys and, for cells too far apart for one key, by the rows."""
+    from mks_sim.geometry.keypoints import cell_keys, unique_cells
+
+    rng = np.random.default_rng(12)
+    near = rng.integers(-5, 5, size=(3000, 3))
+    far = near * 2**21  # spans too much for one int64 key
+    assert cell_keys(near) is not None and cell_keys(far) is None
+    for cells in (near, far):
+        _, first, inverse, counts = np.unique(
+            cells, axis=0, return_index=True, return_inverse=True, return_counts=True
+        )
+        got = unique_cells(cells)
+        for g, w in zip(got, (first, inverse.reshape(-1), counts), strict=True):
+            np.testing.assert_array_equal(g, w)
+        lean = unique_cells(cells, first=False)
+        assert len(lean[0]) == 0
+        np.testing.assert_array_equal(lean[1], inverse.reshape(-1))

@@ -99,14 +99,31 @@ def unique_keys(
     return ordered[starts], firsts, inverse, counts
 
 
-def first_in_each_cell(cells: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Ascending indices of the first row of each distinct (x, y, z) cell in ``cells``."""
+def unique_cells(
+    cells: NDArray[np.int64], *, first: bool = True
+) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+    """``np.unique(cells, axis=0, return_index=True, return_inverse=True,
+    return_counts=True)`` of (N, 3) integer cells without the unique rows: ``(first,
+    inverse, counts)``, the distinct cells in lexicographic order, from one int64 key per
+    cell (:func:`cell_keys`, :func:`unique_keys`) or, for cells too far apart for that, the
+    rows themselves. ``first`` is empty when not asked for."""
     keys = cell_keys(cells)
     if keys is not None:
-        first = unique_keys(keys)[1]
-    else:  # cells too far apart for one int64 key each
-        _, first = np.unique(cells, axis=0, return_index=True)
-    return np.sort(first).astype(np.int64)
+        _, firsts, inverse, counts = unique_keys(keys, first=first)
+        return firsts, inverse, counts
+    if first:
+        _, firsts, inverse, counts = np.unique(
+            cells, axis=0, return_index=True, return_inverse=True, return_counts=True
+        )
+    else:
+        _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+        firsts = np.zeros(0, dtype=np.intp)
+    return firsts, inverse.reshape(-1), counts
+
+
+def first_in_each_cell(cells: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Ascending indices of the first row of each distinct (x, y, z) cell in ``cells``."""
+    return np.sort(unique_cells(cells)[0]).astype(np.int64)
 
 
 def voxel_downsample(points: FloatArray, spacing: float) -> NDArray[np.int64]:

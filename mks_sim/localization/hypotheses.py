@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError, MksError
-from mks_sim.geometry.keypoints import cell_keys, unique_keys
+from mks_sim.geometry.keypoints import unique_cells
 from mks_sim.geometry.points import fibonacci_sphere
 from mks_sim.geometry.transforms import make_transform, rotation_from_covariance
 from mks_sim.lowlevel.grouping import Vertexes
@@ -363,13 +363,8 @@ def sphere_centre_hough(
         return []
     votes = objects - radius * normals
     cell = radius / 5.0
-    cells = np.floor(votes / cell).astype(np.int64)
-    keys = cell_keys(cells)  # the cells' order, a 1-D sort
-    if keys is not None:
-        _, _, inv, counts = unique_keys(keys, first=False)
-    else:
-        _, inv, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
+    # the cells in lexicographic order (ties among peaks as np.unique of the rows breaks them)
+    _, inv, counts = unique_cells(np.floor(votes / cell).astype(np.int64), first=False)
     out: list[FloatArray] = []
     for k in np.argsort(-counts)[: peaks * 3]:
         if counts[k] < 10 or len(out) >= peaks:

@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError
-from mks_sim.geometry.keypoints import cell_keys, unique_keys
+from mks_sim.geometry.keypoints import unique_cells
 
 __all__ = [
     "Representation",
@@ -86,13 +86,7 @@ def _tree(points: FloatArray) -> cKDTree:
 def voxel_average(points: FloatArray, voxel: float) -> FloatArray:
     """(M, 3) centroids of the points in each occupied cube of edge ``voxel`` (the one voxel
     filter of the package)."""
-    cells = np.floor(points / voxel).astype(np.int64)
-    flat = cell_keys(cells)  # one int64 per cell
-    if flat is not None:
-        _, _, inverse, counts = unique_keys(flat, first=False)
-    else:  # a cloud too wide for one int64 key per cell
-        _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
+    _, inverse, counts = unique_cells(np.floor(points / voxel).astype(np.int64), first=False)
     out = np.zeros((len(counts), 3))
     for d in range(3):
         out[:, d] = np.bincount(inverse, weights=points[:, d]) / counts
