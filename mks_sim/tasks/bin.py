@@ -102,17 +102,20 @@ def instance_bodies(world: World) -> tuple[str, ...]:
     return tuple(world.scene.models)
 
 
-def bin_roi(world: World) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) world corners of the bin's inside: the scene's declared region (scene data,
-    a workcell calibration -- not ground truth), ``ROI_MARGIN_M`` inside the walls, up to
-    ``ROI_HEIGHT_M`` above the support."""
+def bin_walls_xy(world: World) -> tuple[np.ndarray, np.ndarray]:
+    """((2,) lo, (2,) hi) world xy of the bin walls' inner faces: the scene's declared region
+    (scene data, a workcell calibration -- not ground truth)."""
     (cx, cy), (hx, hy) = world.scene.region_center_xy, world.scene.region_half_xy
+    return np.array([cx - hx, cy - hy]), np.array([cx + hx, cy + hy])
+
+
+def bin_roi(world: World) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) world corners of the bin's inside: ``ROI_MARGIN_M`` inside the walls
+    (:func:`bin_walls_xy`), up to ``ROI_HEIGHT_M`` above the support."""
+    lo, hi = bin_walls_xy(world)
     z = world.scene.support_z
     m = ROI_MARGIN_M
-    return (
-        np.array([cx - hx + m, cy - hy + m, z - 0.02]),
-        np.array([cx + hx - m, cy + hy - m, z + ROI_HEIGHT_M]),
-    )
+    return np.array([*(lo + m), z - 0.02]), np.array([*(hi - m), z + ROI_HEIGHT_M])
 
 
 def visible_fraction(mesh_points: np.ndarray, T: np.ndarray, sensed: np.ndarray) -> float:
@@ -1533,13 +1536,6 @@ class PushPlan:
     end_world: np.ndarray
     yaw_rad: float
     wall_gap_m: float
-
-
-def bin_walls_xy(world: World) -> tuple[np.ndarray, np.ndarray]:
-    """((2,) lo, (2,) hi) world xy of the bin walls' inner faces: the scene's declared region
-    (scene data, as :func:`bin_roi`)."""
-    (cx, cy), (hx, hy) = world.scene.region_center_xy, world.scene.region_half_xy
-    return np.array([cx - hx, cy - hy]), np.array([cx + hx, cy + hy])
 
 
 def plan_push(
