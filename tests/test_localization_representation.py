@@ -125,6 +125,41 @@ def test_each_piece_is_computed_once(monkeypatch: pytest.MonkeyPatch) -> None:
     assert calls == {"normals": 1, "segment": 1}
 
 
+def test_a_segment_and_its_component_intersect_their_faces_once(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The Vertex_Detector's component and the object segment holding the same points (the
+    cube) share one plane-vertex intersection; the vertexes are the cube's 8 corners (top
+    ones from three faces, bottom ones with the table)."""
+    import mks_sim.lowlevel.vertexes as vertexes_mod
+    from mks_sim.localization.pipeline import object_segments
+
+    calls: list[int] = []
+    real = vertexes_mod.plane_vertexes
+
+    def count(planes, *a, **k):  # type: ignore[no-untyped-def]
+        calls.append(len(planes))
+        return real(planes, *a, **k)
+
+    monkeypatch.setattr(vertexes_mod, "plane_vertexes", count)
+    rep = Representation(_scene(), RepresentationConfig(table_z_m=TABLE_Z, gap_m=0.012))
+    segments = object_segments(rep, 0.0866)
+    n_segment_calls = len(calls)
+    cube_seg = min(segments, key=lambda s: abs(s.points[:, 0].mean() - 0.05))
+    comp = next(c for c in rep.components(30) if set(rep.objects[c, 0].round(9)) ==
+                set(cube_seg.points[:, 0].round(9)))  # fmt: skip
+    verts, planes = rep.vertexes_of(comp)
+    assert len(calls) == n_segment_calls  # no second intersection
+    assert verts is cube_seg.vertexes and tuple(planes) == cube_seg.planes
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * 0.025
+    corners += [0.05, -0.03, TABLE_Z + 0.025]
+    d = np.linalg.norm(verts.points[:, None] - corners[None], axis=2).min(axis=0)
+    assert np.all(d < 0.003), d
+    # other planes (one face left out): a new intersection
+    rep.plane_vertexes(planes[1:], True)
+    assert len(calls) == n_segment_calls + 1
+
+
 def test_segments_are_verified_most_promising_first_and_stop_when_settled() -> None:
     """A 5 cm cube and a 9 x 6 x 3 cm box on a table, the box's segment the larger: the
     cube's segment is verified first (its vertex hypotheses explain it, the box's only in

@@ -169,8 +169,6 @@ def object_segments(
     from scipy import sparse
     from scipy.sparse import csgraph
 
-    from mks_sim.lowlevel.vertexes import plane_vertexes
-
     objects = rep.objects
     if len(objects) < min_points:
         return []
@@ -196,7 +194,6 @@ def object_segments(
     sizes = np.bincount(merged)
     member_of = np.full(len(objects), -1, dtype=np.intp)
     member_of[idx] = merged
-    tol = 4.0 * max(rep.spacing, rep.segmentation.spacing, 1e-4)
     out: list[Segment] = []
     for c in np.argsort(-sizes, kind="stable"):
         if sizes[c] < min_points:
@@ -209,16 +206,8 @@ def object_segments(
             if len(r.indices) >= rep.config.min_region_points
             and np.mean(member_of[r.indices] == c) >= 0.5
         ]
-        on_table = False
-        if rep.table is not None:
-            d = float(np.min(rep.table.distance(seg_pts)))
-            on_table = d <= rep.table_threshold + 4.0 * rep.spacing
-        verts = plane_vertexes(
-            planes,
-            objects,
-            extra_planes=[rep.table.flipped()] if on_table and rep.table is not None else [],
-            tolerance=tol,
-        )
+        on_table = rep.touches_table(seg_pts)
+        verts = rep.plane_vertexes(planes, on_table)
         out.append(Segment(members, seg_pts, tuple(planes), verts, on_table))
     return out
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 import weakref
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
@@ -414,27 +415,50 @@ class Representation:
         indices >= the number of planes refer to the table. Cached."""
         key = ("vertexes", int(component[0]) if len(component) else -1, min_points, min_angle_deg)
         if key not in self._cache:
-            from mks_sim.lowlevel.vertexes import plane_vertexes
-
             planes = self.planes_of(component, min_points)
-            extra = []
-            table = self.table
-            if table is not None and len(component):
-                touch = float(np.min(table.distance(self.objects[component])))
-                if touch <= self.table_threshold + 4.0 * self.spacing:
-                    extra = [table.flipped()]
-            tol = 4.0 * max(self.spacing, self.segmentation.spacing, 1e-4)
+            on_table = self.touches_table(self.objects[component]) if len(component) else False
             self._cache[key] = (
-                plane_vertexes(
-                    planes,
-                    self.objects,
-                    extra_planes=extra,
-                    tolerance=tol,
-                    min_angle_deg=min_angle_deg,
-                ),
+                self.plane_vertexes(planes, on_table, min_angle_deg=min_angle_deg),
                 planes,
             )
         return self._cache[key]
+
+    def touches_table(self, points: FloatArray) -> bool:
+        """Some of ``points`` lie within the table band plus 4 spacings of the table (an
+        object resting on it)."""
+        table = self.table
+        if table is None or len(points) == 0:
+            return False
+        touch = float(np.min(table.distance(points)))
+        return touch <= self.table_threshold + 4.0 * self.spacing
+
+    def plane_vertexes(
+        self, planes: Sequence[Any], on_table: bool, *, min_angle_deg: float = 30.0
+    ) -> Any:
+        """:func:`~mks_sim.lowlevel.vertexes.plane_vertexes` of some of
+        :attr:`segmentation`'s planes (indices into :attr:`objects`), with the table as the
+        face the object rests on when ``on_table``; the tolerance 4 spacings. Cached on the
+        planes: a component and the object segment that is the same points (the
+        ``Vertex_Detector`` and the polyhedral candidates) intersect their faces once."""
+        table = self.table if on_table else None
+        key = ("plane_vertexes", tuple(id(r) for r in planes), table is not None, min_angle_deg)
+        hit = self._cache.get(key)
+        if hit is None or any(a is not b for a, b in zip(hit[1], planes, strict=True)):
+            from mks_sim.lowlevel.vertexes import plane_vertexes
+
+            tol = 4.0 * max(self.spacing, self.segmentation.spacing, 1e-4)
+            hit = (
+                plane_vertexes(
+                    planes,
+                    self.objects,
+                    extra_planes=[table.flipped()] if table is not None else [],
+                    tolerance=tol,
+                    min_angle_deg=min_angle_deg,
+                ),
+                tuple(planes),
+            )
+            self._cache[key] = hit
+        return hit[0]
 
 
 _REGISTRY: dict[tuple[int, RepresentationConfig], tuple[Any, Representation]] = {}
