@@ -160,6 +160,33 @@ def test_a_segment_and_its_component_intersect_their_faces_once(
     assert len(calls) == n_segment_calls + 1
 
 
+def test_contenders_leave_out_candidates_far_below_a_consistent_best() -> None:
+    """Only when the best-scored candidate is consistent are those scoring more than
+    CHECK_MARGIN below it left unchecked; the others are all kept."""
+    from mks_sim.localization.pipeline import CHECK_MARGIN, _contenders
+    from mks_sim.localization.verify import Consistency
+    from mks_sim.models.pose import PoseHypothesis
+
+    def hyp(score: float) -> PoseHypothesis:
+        return PoseHypothesis(np.eye(4), np.zeros(3), votes=1, score=score)
+
+    def verdict(ok: bool) -> Consistency:
+        return Consistency(explained=100, inside=0 if ok else 50, below=0, penetration=0.0,
+                           unexplained=0, ok=ok)  # fmt: skip
+
+    hyps = [hyp(0.99), hyp(0.99 - CHECK_MARGIN + 0.01), hyp(0.99 - CHECK_MARGIN - 0.01)]
+    checked: list[PoseHypothesis] = []
+
+    def check_ok(h: PoseHypothesis) -> Consistency:
+        checked.append(h)
+        return verdict(True)
+
+    assert _contenders(hyps, check_ok) == hyps[:2]
+    assert checked == [hyps[0]]  # only the best is checked to decide
+    assert _contenders(hyps, lambda h: verdict(False)) == hyps
+    assert _contenders([], check_ok) == []
+
+
 def test_segments_are_verified_most_promising_first_and_stop_when_settled() -> None:
     """A 5 cm cube and a 9 x 6 x 3 cm box on a table, the box's segment the larger: the
     cube's segment is verified first (its vertex hypotheses explain it, the box's only in
