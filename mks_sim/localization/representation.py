@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError
 from mks_sim.geometry.keypoints import unique_cells
+from mks_sim.lowlevel.normals import _smallest_eigenvalue
 
 __all__ = [
     "Representation",
@@ -114,7 +115,11 @@ def spacing_and_noise(
     spacing = float(np.median(d[:, 1])) if k > 1 else 0.0
     nb = points[idx]  # (P, k, 3)
     c = nb - nb.mean(axis=1, keepdims=True)
-    lam0 = np.linalg.eigvalsh(np.einsum("pki,pkj->pij", c, c) / k)[:, 0]
+    # the covariances' upper triangles, and their smallest eigenvalues in closed form
+    # (numpy's batched einsum and eigvalsh: 2.7 ms per 800 probes)
+    cx, cy, cz = c[..., 0], c[..., 1], c[..., 2]
+    upper = [cx * cx, cx * cy, cx * cz, cy * cy, cy * cz, cz * cz]
+    lam0 = _smallest_eigenvalue(np.stack([u.sum(axis=1) for u in upper], axis=1) / k)[0]
     return spacing, float(np.median(np.sqrt(np.clip(lam0, 0.0, None))))
 
 
