@@ -1008,9 +1008,10 @@ def localize_polyhedral(
     :func:`mks_sim.localization.workstation.localize_object`): spheres set aside, segments,
     vertex / plane-pair candidates (most promising segment first, stopping once settled),
     consistency over the whole cloud; a settled best (:func:`_settled`) is set to rest on
-    the table (polished first when it does not rest) and returned; otherwise the model's rotation-invariant Hough on its logical sensor, support
-    faces for what stays unexplained, a final polish and restarts; returns (consistent
-    hypotheses best first, diagnostics)."""
+    the table (polished first when it does not rest) and returned; otherwise the model's
+    rotation-invariant Hough on its logical sensor, support faces for what stays
+    unexplained, a final polish and restarts; returns (consistent hypotheses best first,
+    diagnostics)."""
     extra: dict[str, Any] = {}
     points = rep.points
     table = rep.table
