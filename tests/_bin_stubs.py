@@ -18,6 +18,9 @@ class StubPicker:
     def clear_of_neighbours(self, i: int, cands: list[Any]) -> list[Any]:
         return list(cands)
 
+    def redraw(self) -> None:
+        pass
+
     def body_of(self, T: Any) -> str:
         return "part"
 

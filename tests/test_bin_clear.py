@@ -782,3 +782,79 @@ def test_a_part_hanging_on_two_pads_is_lifted_slowly_and_stays(monkeypatch):
     ok, failure, rise = _replay_bin5_pick()
     assert not ok and failure == "slipped", (failure, rise)
     assert rise < 0.01, rise
+
+
+@pytest.mark.parametrize(("first_with_grasp", "picked"), [(0, 1), (2, 1), (3, 1), (4, 0)])
+def test_a_bin_with_no_grasp_draws_the_synthesis_again_before_stopping(
+    monkeypatch, first_with_grasp, picked
+):
+    """The synthesis samples at random: the only part has a candidate from draw
+    ``first_with_grasp`` on (0: the first). The loop draws again (``redraw``) up to
+    GRASP_REDRAWS = 3 times before it stops: draws 0-3 give the pick, draw 4 is never made
+    (the bin stops, the same candidate-less draws counted as before)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    from _bin_stubs import StubPicker, patch_loop
+
+    from mks_sim.tasks import bin as binmod
+
+    assert binmod.GRASP_REDRAWS == 3
+    robots: list = []
+
+    class Robot(StubPicker):
+        def __init__(self, world, devices, **kw):
+            robots.append(self)
+            self.bodies = ["part"]
+            self.failed_grasps: list = []
+            self.retry_failed = False
+            self.in_box = False
+            self.draw = 0
+            self.sensed = SimpleNamespace(provenance={})
+            self.perception_s = self.last_tilt_deg = 0.0
+            self.views, self.faults_seen, self.obj = 1, {}, None
+
+        def sense(self):
+            return [] if self.in_box else [SimpleNamespace(matrix=np.eye(4), score=1.0)]
+
+        def redraw(self):
+            self.draw += 1
+
+        def grasps(self, i, obstacles="all"):
+            return ["grasp"] if self.draw >= first_with_grasp else []
+
+        def pick(self, cands, index, perturb, instance=None):
+            self.in_box = True
+            return True, ""
+
+    patch_loop(monkeypatch, binmod, Robot, robots)
+    monkeypatch.setattr(binmod, "_push_candidate", lambda *a: None)  # the stub has no walls
+    rec = binmod.clear_bin(None, {})
+    assert rec["picked"] == picked, rec
+    assert robots[-1].draw == min(first_with_grasp, binmod.GRASP_REDRAWS)
+    if not picked:
+        assert rec["stopped"] == "no collision-free grasp for any instance found"
+        assert rec["picks"][-1]["failure"] == "no grasp (0 blocked by obstacles, 1 without a pair)"
+
+
+def test_the_push_asks_for_a_pair_in_more_than_one_draw():
+    """_has_pair: a pair in draw 3 (the last of 1 + GRASP_REDRAWS) counts; none in four
+    draws is no pair, and no fifth draw is made."""
+    from mks_sim.tasks import bin as binmod
+
+    class Robot:
+        def __init__(self, first):
+            self.first, self.draw, self.asked = first, 0, 0
+
+        def redraw(self):
+            self.draw += 1
+
+        def grasps(self, i, obstacles="all"):
+            assert obstacles == "none"
+            self.asked += 1
+            return ["pair"] if self.draw >= self.first else []
+
+    r = Robot(3)
+    assert binmod._has_pair(r, 0) and r.asked == 4
+    r = Robot(4)
+    assert not binmod._has_pair(r, 0) and r.asked == 4 and r.draw == 3
