@@ -11,9 +11,30 @@ import pytest
 class StubPicker:
     """What a stub :class:`~mks_sim.tasks.bin.BinPicker` answers alike in every loop test:
     neighbours never block, the one body is ``part``, and it counts as picked once
-    ``in_box``. Subclasses set ``in_box`` and define ``sense``, ``grasps`` and ``pick``."""
+    ``in_box``. Subclasses set ``in_box`` and define ``grasps`` and ``pick`` (and ``sense``
+    when the one part at the origin will not do)."""
 
     in_box = False
+
+    def __init__(self, world: Any = None, devices: Any = None, **kw: Any) -> None:
+        """The state ``clear_bin`` reads of a robot with one part and one view, healthy."""
+        from types import SimpleNamespace
+
+        self.world, self.bodies = world, ["part"]
+        self.failed_grasps: list[Any] = []
+        self.retry_failed = False
+        self.in_box = False
+        self.sensed = SimpleNamespace(provenance={})
+        self.perception_s = self.last_tilt_deg = 0.0
+        self.views, self.faults_seen, self.obj = 1, {}, None
+
+    def sense(self) -> list[Any]:
+        """The one part at the origin, score 1, until it is in the box."""
+        from types import SimpleNamespace
+
+        import numpy as np
+
+        return [] if self.in_box else [SimpleNamespace(matrix=np.eye(4), score=1.0)]
 
     def clear_of_neighbours(self, i: int, cands: list[Any]) -> list[Any]:
         return list(cands)

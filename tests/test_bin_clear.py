@@ -316,9 +316,7 @@ def test_a_bin_stalled_on_grasps_that_failed_tries_them_again(monkeypatch):
     """The only part's grasp could not be reached once (the descent blocked); the next
     planning has nothing else: the bin tries the failed grasp again instead of stopping, at
     most RETRY_FAILED_ROUNDS times."""
-    from types import SimpleNamespace
 
-    import numpy as np
     from _bin_stubs import StubPicker, patch_loop
 
     from mks_sim.tasks import bin as binmod
@@ -329,18 +327,9 @@ def test_a_bin_stalled_on_grasps_that_failed_tries_them_again(monkeypatch):
 
     class Robot(StubPicker):
         def __init__(self, world, devices, **kw):
+            super().__init__(world, devices)
             robots.append(self)
-            self.bodies = ["part"]
-            self.failed_grasps: list = []
-            self.retry_failed = False
-            self.in_box = False
             self.tries = 0
-            self.sensed = SimpleNamespace(provenance={})
-            self.perception_s = self.last_tilt_deg = 0.0
-            self.views, self.faults_seen, self.obj = 1, {}, None
-
-        def sense(self):
-            return [] if self.in_box else [SimpleNamespace(matrix=np.eye(4), score=1.0)]
 
         def grasps(self, i, obstacles="all"):
             return self._untried([grasp], obstacles)
@@ -792,9 +781,7 @@ def test_a_bin_with_no_grasp_draws_the_synthesis_again_before_stopping(
     ``first_with_grasp`` on (0: the first). The loop draws again (``redraw``) up to
     GRASP_REDRAWS = 3 times before it stops: draws 0-3 give the pick, draw 4 is never made
     (the bin stops, the same candidate-less draws counted as before)."""
-    from types import SimpleNamespace
 
-    import numpy as np
     from _bin_stubs import StubPicker, patch_loop
 
     from mks_sim.tasks import bin as binmod
@@ -804,18 +791,9 @@ def test_a_bin_with_no_grasp_draws_the_synthesis_again_before_stopping(
 
     class Robot(StubPicker):
         def __init__(self, world, devices, **kw):
+            super().__init__(world, devices)
             robots.append(self)
-            self.bodies = ["part"]
-            self.failed_grasps: list = []
-            self.retry_failed = False
-            self.in_box = False
             self.draw = 0
-            self.sensed = SimpleNamespace(provenance={})
-            self.perception_s = self.last_tilt_deg = 0.0
-            self.views, self.faults_seen, self.obj = 1, {}, None
-
-        def sense(self):
-            return [] if self.in_box else [SimpleNamespace(matrix=np.eye(4), score=1.0)]
 
         def redraw(self):
             self.draw += 1
