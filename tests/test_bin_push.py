@@ -133,15 +133,10 @@ def _stub_clear_bin(monkeypatch, moves: bool):
 
     class Robot(StubPicker):
         def __init__(self, world, devices, **kw):
+            super().__init__(world, devices)
             robots.append(self)
-            self.world, self.bodies, self.table_z = world, ["part"], 0.0
-            self.failed_grasps: list = []
-            self.retry_failed = False
-            self.in_box = False
+            self.table_z = 0.0
             self.at = np.array([-0.115, 0.0, 0.0])  # 5 mm from the -x wall
-            self.sensed = SimpleNamespace(provenance={})
-            self.perception_s = self.last_tilt_deg = 0.0
-            self.views, self.faults_seen = 1, {}
             self.obj = SimpleNamespace(mesh=SimpleNamespace(vertices=part))
             self.ctl, self.home_pos, self.home_yaw = None, np.zeros(3), 0.0
 
