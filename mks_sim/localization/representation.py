@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError
 from mks_sim.geometry.keypoints import unique_cells
-from mks_sim.lowlevel.normals import _smallest_eigenvalue
+from mks_sim.lowlevel.normals import smallest_eigenvalue
 
 __all__ = [
     "Representation",
@@ -119,7 +119,7 @@ def spacing_and_noise(
     # (numpy's batched einsum and eigvalsh: 2.7 ms per 800 probes)
     cx, cy, cz = c[..., 0], c[..., 1], c[..., 2]
     upper = [cx * cx, cx * cy, cx * cz, cy * cy, cy * cz, cz * cz]
-    lam0 = _smallest_eigenvalue(np.stack([u.sum(axis=1) for u in upper], axis=1) / k)[0]
+    lam0 = smallest_eigenvalue(np.stack([u.sum(axis=1) for u in upper], axis=1) / k)[0]
     return spacing, float(np.median(np.sqrt(np.clip(lam0, 0.0, None))))
 
 

@@ -31,6 +31,7 @@ __all__ = [
     "curvature_code",
     "estimate_normals",
     "neighbour_table",
+    "smallest_eigenvalue",
 ]
 
 log = logging.getLogger(__name__)
@@ -205,7 +206,7 @@ def _ring_cov(pts: FloatArray, graph: GraphLike, rings: int) -> FloatArray:
     return out
 
 
-def _smallest_eigenvalue(
+def smallest_eigenvalue(
     cov: FloatArray,
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], FloatArray]:
     """``(lambda_0, q, safe, variation)`` of N symmetric 3x3 matrices given as (N, 6) upper
@@ -235,11 +236,11 @@ def _smallest_eigen(cov: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Closed-form eigen-analysis of N symmetric 3x3 matrices given as (N, 6) upper
     triangles: the unit eigenvector of the smallest eigenvalue and ``lambda_0 / trace``.
 
-    Eigenvalues by :func:`_smallest_eigenvalue`; the eigenvector as the largest cross
+    Eigenvalues by :func:`smallest_eigenvalue`; the eigenvector as the largest cross
     product of two rows of ``C - lambda_0 I``. Isotropic or degenerate neighbourhoods fall
     back to ``numpy.linalg.eigh``.
     """
-    lam0, q, safe, curvature = _smallest_eigenvalue(cov)
+    lam0, q, safe, curvature = smallest_eigenvalue(cov)
     a00, a01, a02, a11, a12, a22 = cov.T
     r0 = np.stack([a00 - lam0, a01, a02], axis=1)
     r1 = np.stack([a01, a11 - lam0, a12], axis=1)
@@ -296,7 +297,7 @@ def estimate_normals(
     graph = FixedGraph.of(graph if graph is not None else SpatialProximityGraph(pts, m=m))
     normals, curvature = _ring_pca(pts, graph, normal_rings)
     if curvature_rings != normal_rings:  # the variation alone: no eigenvectors
-        curvature = _smallest_eigenvalue(_ring_cov(pts, graph, curvature_rings))[3]
+        curvature = smallest_eigenvalue(_ring_cov(pts, graph, curvature_rings))[3]
     if viewpoint is not None:
         vp = np.asarray(viewpoint, dtype=np.float64).reshape(3)
         toward = vp[None, :] - pts
