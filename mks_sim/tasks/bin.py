@@ -8,6 +8,7 @@ object; nothing here knows which object is in the bin.
 
 from __future__ import annotations
 
+import logging
 import time
 import tomllib
 from collections.abc import Callable, Sequence
@@ -34,6 +35,8 @@ __all__ = [
     "instance_bodies",
     "run_localize_all",
 ]
+
+logger = logging.getLogger(__name__)
 
 BIN_SCENE = "bin"
 MAX_INSTANCES = 12
@@ -355,6 +358,8 @@ class Pick:
         body: the body it was (evaluation: the true instance nearest the estimate).
         tilt_deg: how far the grasp's approach was from straight down (0: top-down; a part
             on its side or upside down is grasped tilted).
+        passenger_points: points of other parts the range finder saw lifted with the held
+            one at the travel height (:func:`passenger_points`; 0: none seen).
     """
 
     instance: int
@@ -367,6 +372,7 @@ class Pick:
     score: float
     body: str | None
     tilt_deg: float = 0.0
+    passenger_points: int = 0
 
     def to_json(self) -> dict[str, Any]:
         """The CLI's record of the pick."""
@@ -381,6 +387,7 @@ class Pick:
             "score": round(self.score, 4),
             "body": self.body,
             "tilt_deg": round(self.tilt_deg, 1),
+            "passenger_points": self.passenger_points,
         }
 
 
@@ -507,6 +514,7 @@ class BinPicker:
         self.view_gains: dict[int, int] = {}
         self.placed: list[np.ndarray] = []  # footprints of the parts let go in the box
         self.failed_grasps: list[Any] = []  # grasps the arm could not reach (not tried again)
+        self.last_passengers = 0  # points of parts lifted with the last pick's part
         self.retry_failed = False  # ... unless the bin has stalled (:meth:`_untried`)
 
     def sense(self) -> list[Any]:
@@ -791,13 +799,16 @@ class BinPicker:
         # top-down home on the way there
         tilted = float(ctl.pinch_rotation()[2, 2]) > -0.999
         keep = ctl.pinch_rotation() if tilted else None
+        self.last_passengers = 0
         if ok and pinch_to_world is not None and instance is not None:
             T = self.sensed.instances.instances[instance].matrix
             V = np.asarray(self.obj.mesh.vertices, dtype=float)
             part_to_pinch = np.linalg.inv(pinch_to_world) @ T
+            riders = self._passengers(part_to_pinch)
+            self.last_passengers = len(riders)
             failure = _carry_to_box(
                 ctl, V @ part_to_pinch[:3, :3].T + part_to_pinch[:3, 3], self.table_z, keep,
-                placed=self.placed,
+                placed=self.placed, passengers=riders,
             )  # fmt: skip
             ok = not failure
         elif ok:
@@ -811,6 +822,32 @@ class BinPicker:
         ctl.move_to(self.home_pos, self.home_yaw, spacing_m=0.03, rotation=home_rot)
         self.world.step(100)  # what was dropped comes to rest
         return ok, failure
+
+    def _passengers(self, part_to_pinch: np.ndarray) -> np.ndarray:
+        """(K, 3) points of parts lifted with the held one, in the pinch frame now
+        (:func:`passenger_points` on one range finder reading at the travel height); (0, 3):
+        none seen, or no reading (the range finder failed: the wrist camera, on the hand,
+        does not see below it)."""
+        from mks_sim.devices.range_finder import merge_scans
+        from mks_sim.errors import DeviceFailure
+
+        dev = self.devices.get("range_finder")
+        if dev is None or self.sensed is None:
+            return np.empty((0, 3))
+        try:
+            points = merge_scans(dev.read())[0]
+        except DeviceFailure as exc:
+            self.faults_seen.setdefault("range_finder", str(exc))
+            return np.empty((0, 3))
+        pinch = np.eye(4)
+        pinch[:3, :3], pinch[:3, 3] = self.ctl.pinch_rotation(), self.ctl.pinch_pos()
+        riders = passenger_points(
+            points, self.sensed.scene_points, self.samples, pinch @ part_to_pinch,
+            pinch[:3, 3], self.table_z,
+        )  # fmt: skip
+        if len(riders):
+            logger.info("passenger: %d points lifted with the held part", len(riders))
+        return (riders - pinch[:3, 3]) @ pinch[:3, :3]
 
     # -- evaluation only (ground truth) ------------------------------------------------------
     def body_of(self, T: np.ndarray) -> str | None:
@@ -967,6 +1004,7 @@ def clear_bin(
                 float(found[i].score),
                 body,
                 robot.last_tilt_deg,
+                robot.last_passengers,
             )  # fmt: skip
         )
         if stopped.startswith("simulation failed"):
@@ -1442,6 +1480,110 @@ def fall_room(W: np.ndarray, half_xy: np.ndarray) -> np.ndarray:
     return half
 
 
+# -- passengers: parts lifted with the held one ----------------------------------------------
+#: Sensed points at the travel height count as lifted when they stand this much above
+#: everything sensed before the pick within :data:`LIFTED_CELL_M` (the scanner's noise is
+#: 0.5 mm; a part settling in the pile moves a few millimetres).
+LIFTED_ABOVE_M = 0.015
+LIFTED_CELL_M = 0.01
+#: ... and lie within this distance of the pinch point, horizontally: a passenger hung up
+#: to 230 mm from it (tuning bin 36).
+LIFTED_REACH_M = 0.25
+#: A lifted point within this distance of the held part's model, posed at its estimate moved
+#: with the hand (after :func:`_fit_held`), is the held part's own.
+HELD_OWN_M = 0.006
+#: The held part's estimate is refined on the lifted points (trimmed ICP: pairs within this
+#: distance, this many rounds): a part held off its centre turns in the grasp by up to ~30 mm.
+HELD_FIT_PAIR_M = 0.02
+HELD_FIT_ROUNDS = 15
+#: At least this many lifted points the held part does not explain are a passenger (a part
+#: shows ~300-1500 points at the scanner's 2.5 mm spacing; fewer are noise or an edge of the
+#: held part the estimate misses).
+PASSENGER_POINTS = 40
+
+
+def lifted_points(
+    points_world: np.ndarray, before_world: np.ndarray, pinch_world: np.ndarray, table_z: float
+) -> np.ndarray:
+    """(M,) bool: ``points_world`` (N, 3) sensed with the hand up that were lifted: within
+    :data:`LIFTED_REACH_M` of the pinch point ``pinch_world`` (3,) horizontally and more than
+    :data:`LIFTED_ABOVE_M` above every point sensed before the pick (``before_world`` (K, 3),
+    the scene's points) in their :data:`LIFTED_CELL_M` cell and its eight neighbours; where
+    nothing was sensed before, above the table (``table_z``). Metres, world frame."""
+    P = np.asarray(points_world, dtype=float).reshape(-1, 3)
+    B = np.asarray(before_world, dtype=float).reshape(-1, 3)
+    near = np.linalg.norm(P[:, :2] - np.asarray(pinch_world)[:2], axis=1) < LIFTED_REACH_M
+    top: dict[tuple[int, int], float] = {}
+    for (i, j), z in zip(map(tuple, np.floor(B[:, :2] / LIFTED_CELL_M).astype(int)), B[:, 2]):
+        top[(i, j)] = max(top.get((i, j), table_z), float(z))
+    cells = np.floor(P[:, :2] / LIFTED_CELL_M).astype(int)
+    floor = np.full(len(P), table_z)
+    for k in np.flatnonzero(near):
+        i, j = cells[k]
+        floor[k] = max(top.get((i + a, j + b), table_z) for a in (-1, 0, 1) for b in (-1, 0, 1))
+    return np.asarray(near & (P[:, 2] > floor + LIFTED_ABOVE_M))
+
+
+def _fit_held(samples: np.ndarray, T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``T`` (4, 4) moved so that the model's surface ``samples`` (model frame) fits the
+    ``points`` (N, 3) near it: trimmed point-to-point ICP (:data:`HELD_FIT_PAIR_M`,
+    :data:`HELD_FIT_ROUNDS`), the points of a passenger mostly beyond the trim."""
+    from scipy.spatial import cKDTree
+
+    T = np.array(T, dtype=float)
+    for _ in range(HELD_FIT_ROUNDS):
+        posed = samples @ T[:3, :3].T + T[:3, 3]
+        d, j = cKDTree(posed).query(points, distance_upper_bound=HELD_FIT_PAIR_M)
+        ok = np.isfinite(d)
+        if ok.sum() < 10:
+            break
+        a, b = posed[j[ok]], points[ok]  # model points -> their sensed partners
+        ca, cb = a.mean(axis=0), b.mean(axis=0)
+        U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
+        D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(Vt.T @ U.T)))])
+        R = Vt.T @ D @ U.T
+        step = np.eye(4)
+        step[:3, :3], step[:3, 3] = R, cb - R @ ca
+        T = step @ T
+        if np.linalg.norm(step[:3, 3]) < 1e-4:
+            break
+    return T
+
+
+def passenger_points(
+    points_world: np.ndarray,
+    before_world: np.ndarray,
+    samples: np.ndarray,
+    held_world: np.ndarray,
+    pinch_world: np.ndarray,
+    table_z: float,
+) -> np.ndarray:
+    """(K, 3) the points of parts lifted with the held one (passengers), world frame; (0, 3)
+    when fewer than :data:`PASSENGER_POINTS` (none seen).
+
+    Args:
+        points_world: (N, 3) sensed with the hand at the travel height (the scanner
+            self-filters the robot, so neither hand nor fingers are in them).
+        before_world: (K, 3) the scene's points sensed before the pick.
+        samples: (S, 3) the model's surface (model frame).
+        held_world: (4, 4) the held part's estimate moved with the hand (the instance's
+            localized pose, carried from where the hand closed to where it is).
+        pinch_world: (3,) the pinch point now.
+        table_z: the table top.
+
+    The lifted points (:func:`lifted_points`) less those within :data:`HELD_OWN_M` of the
+    held part's surface, its estimate refined on them (:func:`_fit_held`).
+    """
+    P = np.asarray(points_world, dtype=float).reshape(-1, 3)
+    P = P[np.all(np.isfinite(P), axis=1)]
+    up = P[lifted_points(P, before_world, pinch_world, table_z)]
+    if len(up) < PASSENGER_POINTS:
+        return np.empty((0, 3))
+    T = _fit_held(samples, held_world, up)
+    left = up[~_near_surface(samples, T, up, HELD_OWN_M)]
+    return left if len(left) >= PASSENGER_POINTS else np.empty((0, 3))
+
+
 def _carry_to_box(
     ctl: Any,
     part_pinch: np.ndarray,
@@ -1449,6 +1591,7 @@ def _carry_to_box(
     rotation: np.ndarray | None,
     *,
     placed: list[np.ndarray] | None = None,
+    passengers: np.ndarray | None = None,
 ) -> str:
     """Carry the held part over the output box and lower it in; "" or why not.
 
@@ -1461,6 +1604,9 @@ def _carry_to_box(
         placed: the footprints (xmin, ymin, xmax, ymax) of the parts let go in the box
             before (:func:`place_middle`); this part's is appended once its place is chosen
             (also when it is then dropped on the way). None: the box's centre.
+        passengers: (K, 3) points of parts lifted with the held one, in the pinch frame
+            (:func:`passenger_points`): the bundle's lowest point, footprint and place are
+            those of the held part and them together.
 
     The part's middle goes over its place in the box with its lowest point (or the
     fingertips') ``CARRY_MARGIN_M`` above the walls on the way, then down to
@@ -1472,16 +1618,19 @@ def _carry_to_box(
     pos, yaw = ctl.pinch_pos(), ctl.pinch_yaw()
     R = ctl.pinch_rotation()
     W = part_pinch @ R.T + pos  # (N, 3) the part as carried
-    below = max(pos[2] - float(W[:, 2].min()), TIPS_BELOW_PINCH_M)
+    A = W  # ... with its passengers: the bundle
+    if passengers is not None and len(passengers):
+        A = np.vstack([W, np.asarray(passengers, dtype=float) @ R.T + pos])
+    below = max(pos[2] - float(A[:, 2].min()), TIPS_BELOW_PINCH_M)
     travel_z = max(pos[2], table_z + max(BIN_WALL_M, BOX_WALL_M) + CARRY_MARGIN_M + below)
     release_z = table_z + BOX_WALL_M + RELEASE_GAP_M + below
     turn = 0.0
     if rotation is None and placed is not None:
-        turn = _turn_to_fit(W, pos)
-        half = 0.5 * np.ptp(_turned(W[:, :2] - pos[:2], turn), axis=0)
+        turn = _turn_to_fit(A, pos)
+        half = 0.5 * np.ptp(_turned(A[:, :2] - pos[:2], turn), axis=0)
         if np.any(fall_room(W, half) > half):  # it will fall over: along the box's length
-            turn = _turn_to_fit(W, pos, long_along_x=False)
-    Wxy = _turned(W[:, :2] - pos[:2], turn) + pos[:2]
+            turn = _turn_to_fit(A, pos, long_along_x=False)
+    Wxy = _turned(A[:, :2] - pos[:2], turn) + pos[:2]
     lo, hi = Wxy.min(axis=0), Wxy.max(axis=0)
     middle_off = 0.5 * (lo + hi) - pos[:2]
     if placed is None:

@@ -1,0 +1,175 @@
+"""Passengers: parts lifted with the held one, seen by the range finder and carried as a
+bundle into the output box (``mks_sim.tasks.bin``: :func:`passenger_points`,
+:func:`_carry_to_box` with ``passengers``). Constructed geometry; one slow test on a tuning
+bin against the simulator's truth."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from mks_sim.tasks import bin as binmod
+from mks_sim.tasks.grasp import down_rotation
+
+TABLE_Z = 0.75
+SIZE = np.array([0.10, 0.06, 0.03])  # a box part, metres
+
+
+def _faces(step: float = 0.0025) -> dict[str, np.ndarray]:
+    """The box part's six faces sampled every ``step`` (model frame, centred): name -> (K, 3)."""
+    h = SIZE / 2
+    out = {}
+    for axis, sign in itertools.product(range(3), (-1.0, 1.0)):
+        u, v = [a for a in range(3) if a != axis]
+        gu = np.arange(-h[u], h[u] + 1e-9, step)
+        gv = np.arange(-h[v], h[v] + 1e-9, step)
+        uu, vv = np.meshgrid(gu, gv, indexing="ij")
+        P = np.zeros((uu.size, 3))
+        P[:, u], P[:, v], P[:, axis] = uu.ravel(), vv.ravel(), sign * h[axis]
+        out[f"{'-+'[sign > 0]}{'xyz'[axis]}"] = P
+    return out
+
+
+def _pose(xyz, yaw_deg: float, tilt_deg: float = 0.0) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("zx", [yaw_deg, tilt_deg], degrees=True).as_matrix()
+    T[:3, 3] = xyz
+    return T
+
+
+def _posed(P: np.ndarray, T: np.ndarray) -> np.ndarray:
+    return P @ T[:3, :3].T + T[:3, 3]
+
+
+def _floor(z: float = TABLE_Z) -> np.ndarray:
+    x, y = np.meshgrid(np.arange(-0.17, 0.17, 0.005), np.arange(-0.13, 0.13, 0.005))
+    return np.column_stack([x.ravel(), y.ravel(), np.full(x.size, z)])
+
+
+def _scene(shift_m: float, turn_deg: float, passenger: bool):
+    """A picked box held at the travel height, its estimate ``shift_m`` and ``turn_deg`` off
+    its true pose (turned in the grasp), a box left lying in the pile and maybe a passenger
+    hanging beside the held one: (sensed now, sensed before, samples, the estimate, pinch,
+    the passenger's points seen)."""
+    faces = _faces()
+    samples = np.concatenate(list(faces.values()))
+    seen = np.concatenate([faces["+z"], faces["+x"]])  # the scanner's view: top and one side
+    lying = _pose([0.05, -0.06, TABLE_Z + SIZE[2] / 2], 20.0)
+    held_before = _pose([-0.02, 0.02, TABLE_Z + SIZE[2] / 2], 35.0)
+    rider_before = _pose([-0.02, 0.09, TABLE_Z + SIZE[2] / 2], -10.0)
+    before = np.concatenate(
+        [_floor(), _posed(seen, lying), _posed(seen, held_before), _posed(seen, rider_before)]
+    )
+    pinch = np.array([-0.02, 0.02, TABLE_Z + 0.16])
+    estimate = _pose(pinch - [0.0, 0.0, 0.02], 35.0)
+    truth = _pose(pinch - [0.0, 0.0, 0.02] + [shift_m, 0.0, 0.0], 35.0 + turn_deg, 3.0)
+    rider = _posed(seen, _pose(pinch + [0.01, 0.09, -0.07], -10.0, 25.0))
+    now = [_floor()[np.linalg.norm(_floor()[:, :2] - pinch[:2], axis=1) > 0.07]]
+    now += [_posed(seen, lying), _posed(seen, truth)]
+    if passenger:
+        now.append(rider)
+    noise = np.random.default_rng(1).normal(0.0, 0.0005, (sum(map(len, now)), 3))
+    return np.concatenate(now) + noise, before, samples, estimate, pinch, rider
+
+
+@pytest.mark.parametrize("shift_m, turn_deg", [(0.0, 0.0), (0.008, 5.0)])
+def test_a_passenger_is_told_from_the_held_part_and_the_pile(shift_m, turn_deg):
+    """Of the points sensed with the hand up, those of a part hanging beside the held one are
+    the passenger's; the held part's (its estimate up to 8 mm and 5 deg off) and those of a
+    part lying in the pile are not (brute force: the distance to each part's seen points)."""
+    from scipy.spatial import cKDTree
+
+    now, before, samples, estimate, pinch, rider = _scene(shift_m, turn_deg, passenger=True)
+    got = binmod.passenger_points(now, before, samples, estimate, pinch, TABLE_Z)
+    d = cKDTree(rider).query(got)[0]
+    assert np.all(d < 0.003)  # every point returned is the passenger's
+    assert len(got) >= 0.95 * len(rider)  # and nearly all of the passenger's
+
+
+@pytest.mark.parametrize("shift_m, turn_deg", [(0.0, 0.0), (0.008, 5.0)])
+def test_no_passenger_is_seen_when_the_held_part_is_alone(shift_m, turn_deg):
+    now, before, samples, estimate, pinch, _ = _scene(shift_m, turn_deg, passenger=False)
+    got = binmod.passenger_points(now, before, samples, estimate, pinch, TABLE_Z)
+    assert got.shape == (0, 3)
+
+
+def test_points_not_lifted_are_no_passenger():
+    """Points no higher than what was sensed there before the pick (the pile, the floor) are
+    not lifted, however near the hand; a point above a cell never sensed is."""
+    before = np.array([[0.0, 0.0, TABLE_Z + 0.05], [0.1, 0.0, TABLE_Z]])
+    pinch = np.array([0.0, 0.0, TABLE_Z + 0.16])
+    P = np.array(
+        [
+            [0.004, 0.0, TABLE_Z + 0.06],  # 10 mm above the pile: not lifted
+            [0.004, 0.0, TABLE_Z + 0.07],  # 20 mm above it: lifted
+            [0.1, 0.0, TABLE_Z + 0.01],  # 10 mm above the floor: not lifted
+            [-0.1, 0.0, TABLE_Z + 0.02],  # nothing sensed there before: above the table
+            [0.3, 0.0, TABLE_Z + 0.1],  # beyond the hand's reach
+        ]
+    )
+    lifted = binmod.lifted_points(P, before, pinch, TABLE_Z)
+    assert lifted.tolist() == [False, True, False, True, False]
+
+
+class _TurningHand:
+    """A hand that goes where it is told, turning top-down to the yaw asked for."""
+
+    def __init__(self, pos, yaw):
+        self.pos, self.R, self.path = np.asarray(pos, float), down_rotation(yaw), []
+
+    def pinch_pos(self):
+        return self.pos.copy()
+
+    def pinch_rotation(self):
+        return self.R.copy()
+
+    def pinch_yaw(self):
+        return float(np.arctan2(self.R[1, 0], self.R[0, 0]))
+
+    def move_to(self, pos, yaw, spacing_m=0.01, rotation=None):
+        self.R = down_rotation(yaw) if rotation is None else rotation
+        self.pos = np.asarray(pos, dtype=float).copy()
+        self.path.append((self.pos.copy(), self.R.copy()))
+        return True
+
+    def finger_qpos(self):
+        return np.full(3, 0.9)  # closed on a part
+
+
+@pytest.mark.parametrize("before", [0, 2])
+def test_the_bundle_is_let_go_inside_the_box(before):
+    """A held 100 x 60 x 30 mm box with a passenger hanging 150 mm beside it and 60 mm lower
+    is let go with the whole bundle inside the box's walls and above its rim, and carried
+    over both walls (brute force over the corners). Placed for the held part alone, the
+    passenger hung over the wall (tuning bins 22, 35, 36)."""
+    table_z = 0.5
+    corners = np.array(list(itertools.product(*[(-s / 2, s / 2) for s in SIZE])))
+    held = corners + [0.0, 0.0, -0.03]  # pinch frame
+    turned = Rotation.from_euler("z", 30, degrees=True).as_matrix()
+    rider = corners @ turned.T + np.array([0.0, 0.15, -0.09])
+    inside = np.asarray(binmod.OUTPUT_BOX_HALF_XY) - 0.004  # the walls are 8 mm thick
+    c = np.asarray(binmod.OUTPUT_BOX_XY)
+    rim = table_z + binmod.BOX_WALL_M
+
+    def carried(passengers):
+        placed: list[np.ndarray] = []
+        for _ in range(before):
+            m = binmod.place_middle(np.array([0.05, 0.03]), placed)
+            placed.append(np.concatenate([m - [0.05, 0.03], m + [0.05, 0.03]]))
+        hand = _TurningHand([0.05, -0.02, table_z + 0.16], 0.4)
+        assert binmod._carry_to_box(hand, held, table_z, None, placed=placed, **passengers) == ""
+        return hand
+
+    hand = carried({"passengers": rider})
+    B = np.concatenate([held, rider]) @ hand.R.T + hand.pos
+    assert np.all(np.abs(B[:, :2] - c) <= inside)
+    assert B[:, 2].min() >= rim + binmod.RELEASE_GAP_M - 1e-9
+    for pos, R in hand.path[:-1]:  # over the walls, before the last move down
+        low = (np.concatenate([held, rider]) @ R.T + pos)[:, 2].min()
+        assert low >= table_z + binmod.BIN_WALL_M + binmod.CARRY_MARGIN_M - 1e-9
+    alone = carried({})
+    B = np.concatenate([held, rider]) @ alone.R.T + alone.pos
+    assert not (np.all(np.abs(B[:, :2] - c) <= inside) and B[:, 2].min() > rim)
