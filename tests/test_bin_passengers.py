@@ -173,3 +173,31 @@ def test_the_bundle_is_let_go_inside_the_box(before):
     alone = carried({})
     B = np.concatenate([held, rider]) @ alone.R.T + alone.pos
     assert not (np.all(np.abs(B[:, :2] - c) <= inside) and B[:, 2].min() > rim)
+
+
+@pytest.mark.slow
+def test_passengers_on_a_tuning_bin_are_seen_and_land_in_the_box(monkeypatch):
+    """Tuning bin 22's first two picks lift one and two parts with the held one (the
+    simulator's truth: they stand 7 cm above the table as the carry begins): the range
+    finder sees them, and all five end in the output box (placed for the held part alone,
+    the second pick's two passengers hung beyond the box's +y wall and were lost)."""
+    from mks_sim.devices import make_devices
+    from mks_sim.sim import truth
+
+    seed = 22
+    world = binmod.bin_world(seed)
+    bodies = binmod.instance_bodies(world)
+    lifted: list[list[str]] = []
+    carry = binmod._carry_to_box
+
+    def watched(ctl, part_pinch, table_z, rotation, **kw):
+        z = {b: truth.object_to_world(world, b)[2, 3] for b in bodies}
+        lifted.append([b for b in bodies if z[b] > table_z + 0.07])
+        return carry(ctl, part_pinch, table_z, rotation, **kw)
+
+    monkeypatch.setattr(binmod, "_carry_to_box", watched)
+    with make_devices(world.model, world.data, np.random.default_rng(seed), {}) as devices:
+        rec = binmod.clear_bin(world, devices, rng=np.random.default_rng(seed), budget=2)
+    assert [len(up) for up in lifted] == [2, 3]  # the held part and its passengers
+    assert all(p["passenger_points"] >= binmod.PASSENGER_POINTS for p in rec["picks"])
+    assert all(binmod.in_output_box(world, b) for up in lifted for b in up)
