@@ -1532,6 +1532,8 @@ def _fit_held(samples: np.ndarray, T: np.ndarray, points: np.ndarray) -> np.ndar
     :data:`HELD_FIT_ROUNDS`), the points of a passenger mostly beyond the trim."""
     from scipy.spatial import cKDTree
 
+    from mks_sim.geometry.transforms import rigid_fit
+
     T = np.array(T, dtype=float)
     for _ in range(HELD_FIT_ROUNDS):
         posed = samples @ T[:3, :3].T + T[:3, 3]
@@ -1539,13 +1541,8 @@ def _fit_held(samples: np.ndarray, T: np.ndarray, points: np.ndarray) -> np.ndar
         ok = np.isfinite(d)
         if ok.sum() < 10:
             break
-        a, b = posed[j[ok]], points[ok]  # model points -> their sensed partners
-        ca, cb = a.mean(axis=0), b.mean(axis=0)
-        U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
-        D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(Vt.T @ U.T)))])
-        R = Vt.T @ D @ U.T
-        step = np.eye(4)
-        step[:3, :3], step[:3, 3] = R, cb - R @ ca
+        # model points -> their sensed partners (Kabsch)
+        step = rigid_fit(posed[j[ok]], points[ok])[0]
         T = step @ T
         if np.linalg.norm(step[:3, 3]) < 1e-4:
             break
