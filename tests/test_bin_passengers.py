@@ -114,6 +114,31 @@ def test_points_not_lifted_are_no_passenger():
     assert lifted.tolist() == [False, True, False, True, False]
 
 
+def test_lifted_points_match_a_brute_force_over_every_point_sensed_before():
+    """Random scenes: a point is lifted exactly when it is within reach of the hand and more
+    than LIFTED_ABOVE_M above the table and above every point sensed before whose cell is its
+    own or one of the eight around it (each pair checked, no grid)."""
+    rng = np.random.default_rng(5)
+    cell, above = binmod.LIFTED_CELL_M, binmod.LIFTED_ABOVE_M
+    for _ in range(5):
+        before = rng.uniform([-0.2, -0.2, TABLE_Z], [0.2, 0.2, TABLE_Z + 0.08], size=(300, 3))
+        P = rng.uniform([-0.35, -0.35, TABLE_Z], [0.35, 0.35, TABLE_Z + 0.15], size=(400, 3))
+        pinch = np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), TABLE_Z + 0.16])
+        cb, cp = np.floor(before[:, :2] / cell), np.floor(P[:, :2] / cell)
+        want = []
+        for k in range(len(P)):
+            if np.hypot(*(P[k, :2] - pinch[:2])) >= binmod.LIFTED_REACH_M:
+                want.append(False)
+                continue
+            around = np.all(np.abs(cb - cp[k]) <= 1, axis=1)
+            floor = max([TABLE_Z, *before[around, 2]])
+            want.append(bool(P[k, 2] > floor + above))
+        got = binmod.lifted_points(P, before, pinch, TABLE_Z)
+        assert got.tolist() == want
+        assert 0 < sum(want) < len(P)
+    assert not binmod.lifted_points(P, np.zeros((0, 3)), pinch, P[:, 2].max()).any()
+
+
 class _TurningHand:
     """A hand that goes where it is told, turning top-down to the yaw asked for."""
 

@@ -18,6 +18,7 @@ from typing import Any
 
 import mujoco
 import numpy as np
+from scipy.ndimage import maximum_filter
 
 from mks_sim.errors import SpecError
 from mks_sim.sensing.faults import fault_fields
@@ -1515,14 +1516,19 @@ def lifted_points(
     P = np.asarray(points_world, dtype=float).reshape(-1, 3)
     B = np.asarray(before_world, dtype=float).reshape(-1, 3)
     near = np.linalg.norm(P[:, :2] - np.asarray(pinch_world)[:2], axis=1) < LIFTED_REACH_M
-    top: dict[tuple[int, int], float] = {}
-    for (i, j), z in zip(map(tuple, np.floor(B[:, :2] / LIFTED_CELL_M).astype(int)), B[:, 2]):
-        top[(i, j)] = max(top.get((i, j), table_z), float(z))
-    cells = np.floor(P[:, :2] / LIFTED_CELL_M).astype(int)
-    floor = np.full(len(P), table_z)
-    for k in np.flatnonzero(near):
-        i, j = cells[k]
-        floor[k] = max(top.get((i + a, j + b), table_z) for a in (-1, 0, 1) for b in (-1, 0, 1))
+    floor = np.full(len(P), float(table_z))
+    if len(B):
+        # the highest point before in each cell (never below the table), on a grid one cell
+        # wider than the scene's points all round, then the most of each 3 x 3 block
+        cells_b = np.floor(B[:, :2] / LIFTED_CELL_M).astype(np.int64)
+        lo = cells_b.min(axis=0) - 1
+        ib = cells_b - lo
+        top = np.full(tuple(ib.max(axis=0) + 2), float(table_z))
+        np.maximum.at(top, (ib[:, 0], ib[:, 1]), B[:, 2])
+        block = maximum_filter(top, size=3, mode="constant", cval=float(table_z))
+        ip = np.floor(P[:, :2] / LIFTED_CELL_M).astype(np.int64) - lo
+        on = near & np.all((ip >= 0) & (ip < np.array(top.shape)), axis=1)
+        floor[on] = block[ip[on, 0], ip[on, 1]]
     return np.asarray(near & (P[:, 2] > floor + LIFTED_ABOVE_M))
 
 
