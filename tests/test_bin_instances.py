@@ -159,6 +159,21 @@ def test_six_part_bins_without_the_turned_parts_reported(seed):
 
 
 @pytest.mark.slow
+def test_a_pose_its_points_do_not_pin_down_is_not_reported():
+    """Tuning bin 18 (simulator truth, evaluation only): a part 21 % visible was reported
+    4.1 mm and 5.1 deg off, nothing seen through it, 503 points against the truth's 506 --
+    its points leave one motion nearly free (stability 0.0022, the true instances of bins
+    0-59 0.0052 and up). It is found but not reported; the others are, each correct."""
+    from mks_sim.tasks.bin import run_localize_all
+
+    rec = run_localize_all(18)
+    assert rec["false_positives"] == 0, [i["error"] for i in rec["instances"]]
+    assert rec["unsure"] == 1
+    assert rec["found"] == 5 and rec["present"] == 6
+    assert all(i["stability"] >= 0.0035 for i in rec["instances"])
+
+
+@pytest.mark.slow
 def test_tight_pile_found_with_the_alternate_model():
     """Tuning bin 40, a tight pile: the polyhedral votes found 1 of its 6 parts (three 34-52 %
     visible missed, every candidate near one of them 17-22 mm off); the segments that no
@@ -402,3 +417,73 @@ def test_nudges_turn_about_the_box_centre_and_shift_along_its_axes():
     assert sorted(shifts) == sorted(
         [tuple(s * np.eye(3, dtype=int)[k]) for k in range(3) for s in (1, -1)]
     )
+
+
+class _Surface:
+    """A model surface for pose_stability: points, normals and their tree (model frame)."""
+
+    def __init__(self, points, normals):
+        from scipy.spatial import cKDTree
+
+        self.points, self.normals, self.tree = points, normals, cKDTree(points)
+
+
+def _cube_surface(n=20, half=0.05):
+    """Samples and outward normals of a cube's six faces (model frame, centred at 0)."""
+    u = (np.arange(n) + 0.5) * (2 * half / n) - half  # cell centres: no sample on an edge
+    a, b = (g.ravel() for g in np.meshgrid(u, u))
+    pts, nrm = [], []
+    for k in range(3):
+        for sign in (1.0, -1.0):
+            p = np.zeros((len(a), 3))
+            p[:, k] = sign * half
+            p[:, (k + 1) % 3], p[:, (k + 2) % 3] = a, b
+            pts.append(p)
+            nrm.append(np.tile(sign * np.eye(3)[k], (len(a), 1)))
+    return np.vstack(pts), np.vstack(nrm)
+
+
+def test_pose_stability_is_the_point_to_plane_cost_of_the_least_constrained_motion():
+    """Brute force: the mean squared point-to-plane distance after a small motion (turn w
+    about the centre, scaled by the radius, and shift t) is (w r, t)^T H (w r, t); the
+    stability is H's smallest eigenvalue, so no random motion of unit size costs less, and
+    the cheapest one found by sampling comes close to it."""
+    from scipy.spatial.transform import Rotation
+
+    from mks_sim.localization.instances import pose_stability
+
+    pts, nrm = _cube_surface()
+    surface = _Surface(pts, nrm)
+    T = _pose(0.1, -0.05, 30.0, z=0.8, tilt_deg=20.0)
+    radius = float(np.max(np.linalg.norm(pts, axis=1)))
+    rng = np.random.default_rng(1)
+    for faces in ([0], [0, 2], [0, 2, 4], [0, 1, 2, 3, 4, 5]):  # +x; +x +y; corner; all
+        keep = np.isin(np.arange(len(pts)) // 400, faces)
+        seen = pts[keep] @ T[:3, :3].T + T[:3, 3]
+        s = pose_stability(T, surface, seen, np.zeros(3), radius)
+        costs = []
+        for _ in range(3000):
+            m = rng.normal(size=6)
+            m /= np.linalg.norm(m)
+            eps = 1e-4
+            R = Rotation.from_rotvec(eps * m[:3] / radius).as_matrix()
+            q = pts[keep] @ R.T + eps * m[3:]  # the model moved by eps, in its own frame
+            costs.append(np.mean(np.einsum("ij,ij->i", q - pts[keep], nrm[keep]) ** 2) / eps**2)
+        assert min(costs) >= s - 1e-6
+        assert min(costs) <= s + 0.02
+        if len(faces) < 3:  # a face or two leave a shift along them free
+            assert s < 1e-9
+    assert s > 0.05  # the whole cube pins every motion (translation 1/3, turns about half)
+
+
+def test_instances_whose_pose_is_not_pinned_are_not_reported():
+    """The same scene with min_stability above what any pose can reach (1/3: normals evenly
+    spread) reports nothing and keeps every instance as unsure; with 0 all are reported."""
+    model = instance_model("part")
+    pts = _scan(POSES[:2])
+    rng = np.random.default_rng
+    every = localize_all(model, pts, table=TABLE, rng=rng(0), min_stability=0.0)
+    none = localize_all(model, pts, table=TABLE, rng=rng(0), min_stability=0.34)
+    assert every.found == 2 and not every.unsure
+    assert none.found == 0 and len(none.unsure) == 2
+    assert all(0.0 < i.stability <= 1 / 3 + 1e-9 for i in every.instances)

@@ -50,10 +50,15 @@ def format_all_text(rec: dict[str, Any]) -> str:
         lines.append(
             f"  {i}: score {inst['score']:.3f} at ({t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}) m; "
             f"error {e['position_mm']:.2f} mm {e['rotation_deg']:.2f} deg; visible "
-            f"{100 * inst['visible_fraction']:.0f} %" + ("" if inst["correct"] else " (FALSE)")
+            f"{100 * inst['visible_fraction']:.0f} %; stability {inst['stability']:.3f}"
+            + ("" if inst["correct"] else " (FALSE)")
         )
     for m in rec["missed"]:
         lines.append(f"  missed {m['instance']} ({100 * m['visible_fraction']:.0f} % visible)")
+    if rec.get("unsure"):
+        lines.append(
+            f"  not reported: {rec['unsure']} instance(s) whose pose their points do not pin down"
+        )
     served = ", ".join(f"{k} <- {v}" for k, v in sorted(rec["provenance"].items()))
     lines.append(f"logical sensors: {served}")
     lines.append(f"views: {rec['views']} ({', '.join(rec['view_names'])})")

@@ -234,8 +234,9 @@ def run_localize_all(
 
     Returns:
         ``{"scene", "object", "seed", "instances": [{"matrix", "score", "visible_fraction",
-        "error": {"position_mm", "rotation_deg"}, "correct"}], "found", "present",
-        "false_positives", "missed", "provenance", "views", "view_names", "view_log",
+        "error": {"position_mm", "rotation_deg"}, "correct", "stability"}], "found",
+        "present", "false_positives", "missed", "unsure" (instances found but not reported:
+        their pose not pinned down, ``localize_all``'s ``min_stability``), "provenance", "views", "view_names", "view_log",
         "faults", "warnings", "fault_reasons", "time_s", "timing_s", "failed_devices"}``
         (``error``, ``visible_fraction``, ``correct``, ``present``, ``false_positives`` and
         ``missed`` are evaluation from ground truth).
@@ -266,6 +267,7 @@ def run_localize_all(
                 "visible_fraction": ev["visible"][m if m is not None else err["instance"]],
                 "error": {k: err[k] for k in ("position_mm", "rotation_deg")},
                 "correct": m is not None,
+                "stability": round(inst.stability, 4),
             }
         )
     return {
@@ -278,6 +280,7 @@ def run_localize_all(
         "correct": ev["correct"],
         "false_positives": ev["false_positives"],
         "missed": ev["missed"],
+        "unsure": len(sensed.instances.unsure),
         "provenance": sensed.provenance,
         "views": robot.views,
         "view_names": list(sensed.views),
@@ -1105,7 +1108,7 @@ def covered_points(sensed: Any, i: int, obj: Any) -> int:
     from mks_sim.geometry.meshes import sample_surface
 
     insts = sensed.instances.instances
-    others = [sensed.points[inst.points] for j, inst in enumerate(insts) if j != i]
+    others = _parts_points(sensed, i)
     if not others:
         return 0
     P = np.concatenate(others)
@@ -1240,13 +1243,23 @@ def _split_clear(cands: Sequence[Any], parts: np.ndarray) -> tuple[list[Any], li
     )
 
 
+def _parts_points(sensed: Any, i: int) -> list[np.ndarray]:
+    """The sensed points each instance found but ``i`` claimed (``i = -1``: every one),
+    those found but not reported (``Instances.unsure``: a part whose pose its points do not
+    pin down is a part all the same) included."""
+    insts = sensed.instances.instances
+    unsure = getattr(sensed.instances, "unsure", ())  # test stubs hold instances alone
+    return [sensed.points[inst.points] for j, inst in enumerate(insts) if j != i] + [
+        sensed.points[u.points] for u in unsure
+    ]
+
+
 def _claimed_mask(sensed: Any, i: int) -> np.ndarray:
     """(M,) over ``sensed.scene_points``: points some OTHER instance than ``i`` claimed
     (``i = -1``: any instance)."""
     from scipy.spatial import cKDTree
 
-    insts = sensed.instances.instances
-    claimed = [sensed.points[inst.points] for j, inst in enumerate(insts) if j != i]
+    claimed = _parts_points(sensed, i)
     mask = np.zeros(len(sensed.scene_points), dtype=bool)
     if not claimed:
         return mask
