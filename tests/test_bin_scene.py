@@ -68,44 +68,45 @@ def _inside_bin(world) -> list[str]:
     return bad
 
 
-@pytest.mark.slow
-def test_bin_settles_deterministically_inside_the_tray():
-    a = bin_world(3, count=6)
-    b = bin_world(3, count=6)
-    np.testing.assert_array_equal(a.data.qpos, b.data.qpos)
-    assert instance_bodies(a) == ("part", "part_1", "part_2", "part_3", "part_4", "part_5")
-    assert _inside_bin(a) == []
-    poses = truth.all_object_poses(a)
-    z = np.array([T[2, 3] for T in poses.values()])
-    assert z.max() > 0.75 + 0.02  # a pile: some part rests on another or on its side
-    # at rest: a further second of physics moves nothing by more than 2 mm
-    a.step(500)
-    a.forward()
-    moved = [
-        np.linalg.norm(truth.object_to_world(a, n)[:3, 3] - T[:3, 3]) for n, T in poses.items()
-    ]
-    assert max(moved) < 0.002
-    c = bin_world(4, count=6)
-    assert not np.array_equal(a.data.qpos, c.data.qpos)
-    assert _inside_bin(c) == []
-
-
 def _rotation_deg(A: np.ndarray, B: np.ndarray) -> float:
     c = (np.trace(A[:3, :3].T @ B[:3, :3]) - 1.0) / 2.0
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", [0, 7])
-def test_a_dropped_pile_is_at_rest(seed):
-    """Tuning bins 0 and 7 kept moving after the fixed settle (a part 28 mm / 63 deg and
-    78 mm / 92 deg over the next 4 s, ground truth); bin_world now settles until at rest."""
-    world = bin_world(seed, count=6)
-    assert world.rest_steps > 0
+def _assert_at_rest(world) -> None:
+    """2 s more of physics, nothing touching the pile, moves no part by 3 mm or 3 deg."""
     poses = truth.all_object_poses(world)
-    world.step(1000)  # 2 s more, nothing touching the pile
+    world.step(1000)
     world.forward()
     for name, T in poses.items():
         now = truth.object_to_world(world, name)
         assert np.linalg.norm(now[:3, 3] - T[:3, 3]) < 0.003, name
         assert _rotation_deg(T, now) < 3.0, name
+
+
+@pytest.mark.slow
+def test_bin_settles_deterministically_inside_the_tray_and_at_rest():
+    """Tuning bin 0 kept moving after the fixed settle (a part 28 mm / 63 deg over the next
+    4 s, ground truth); bin_world now settles until at rest. The same seed twice gives the
+    same pile, to the bit."""
+    a = bin_world(0, count=6)
+    b = bin_world(0, count=6)
+    np.testing.assert_array_equal(a.data.qpos, b.data.qpos)
+    assert instance_bodies(a) == ("part", "part_1", "part_2", "part_3", "part_4", "part_5")
+    assert _inside_bin(a) == []
+    z = np.array([T[2, 3] for T in truth.all_object_poses(a).values()])
+    assert z.max() > 0.75 + 0.02  # a pile: some part rests on another or on its side
+    assert a.rest_steps > 0
+    _assert_at_rest(a)
+
+
+@pytest.mark.slow
+def test_another_seed_drops_another_pile_also_at_rest():
+    """Tuning bin 7 kept moving after the fixed settle (a part 78 mm / 92 deg over the next
+    4 s); another seed drops its parts elsewhere; this pile is inside the tray too."""
+    a = bin_world(7, count=6)
+    assert a.rest_steps > 0
+    assert _inside_bin(a) == []
+    one = [truth.object_to_world(bin_world(seed, count=1), "part") for seed in (0, 7)]
+    assert np.linalg.norm(one[0][:3, 3] - one[1][:3, 3]) > 0.005  # a part drops elsewhere
+    _assert_at_rest(a)
