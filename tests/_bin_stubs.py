@@ -37,6 +37,10 @@ class StubPicker:
 
         return [] if self.in_box else [SimpleNamespace(matrix=np.eye(4), score=1.0)]
 
+    def unsure_left(self, avoid: Any = ()) -> list[Any]:
+        """No instance is unsure."""
+        return []
+
     def clear_of_neighbours(self, i: int, cands: list[Any]) -> list[Any]:
         return list(cands)
 

@@ -836,3 +836,56 @@ def test_the_push_asks_for_a_pair_in_more_than_one_draw():
     assert binmod._has_pair(r, 0) and r.asked == 4
     r = Robot(4)
     assert not binmod._has_pair(r, 0) and r.asked == 4 and r.draw == 3
+
+
+@pytest.mark.parametrize("pick_holds", [True, False])
+def test_a_part_only_unsure_is_tried_once_not_left_with_nothing_found(monkeypatch, pick_holds):
+    """Every part left is found but unsure (its points do not pin its pose down): the loop
+    picks it (the real ``BinPicker.unsure_left`` on real ``SensedInstances``) rather than
+    stopping "nothing found"; where that pick failed, it is not tried again."""
+    import numpy as np
+    from _bin_stubs import StubPicker, patch_loop
+
+    from mks_sim.localization.instances import Instance, Instances, SensedInstances
+    from mks_sim.tasks import bin as binmod
+
+    robots: list = []
+
+    def unsure_at(x: float, score: float) -> Instance:
+        T = np.eye(4)
+        T[0, 3] = x
+        return Instance(T, score, 100, None, np.arange(3), 0, stability=0.001)  # type: ignore[arg-type]
+
+    class Robot(StubPicker):
+        def __init__(self, world, devices, **kw):
+            super().__init__(world, devices)
+            robots.append(self)
+            self.tried: list[float] = []
+
+        def sense(self):
+            # a far one scored lower, and the one a pick is tried on first
+            unsure = () if self.in_box else (unsure_at(0.1, 0.4), unsure_at(0.0, 0.6))
+            insts = Instances((), 1, None, 0.002, {}, unsure=unsure)
+            self.sensed = SensedInstances(insts, np.zeros((0, 3)), np.zeros((0, 3)), {}, {})
+            return []
+
+        unsure_left = binmod.BinPicker.unsure_left
+
+        def grasps(self, i, obstacles="all"):
+            return ["grasp"]
+
+        def pick(self, cands, index, perturb, instance=None):
+            self.tried.append(float(self.sensed.instances.instances[instance].matrix[0, 3]))
+            self.in_box = pick_holds
+            return pick_holds, "" if pick_holds else "closed on nothing"
+
+    patch_loop(monkeypatch, binmod, Robot, robots)
+    monkeypatch.setattr(binmod, "_push_candidate", lambda *a: None)  # the stub has no walls
+    rec = binmod.clear_bin(None, {})
+    assert rec["picks"][0]["unsure"] is True
+    if pick_holds:
+        assert robots[-1].tried == [0.0] and rec["picked"] == 1
+        assert rec["stopped"] == "nothing found"
+    else:  # each place once (the failed one is avoided), then "nothing found", budget left
+        assert robots[-1].tried == [0.0, 0.1], rec
+        assert rec["stopped"] == "nothing found" and len(rec["picks"]) == 2

@@ -152,7 +152,8 @@ def format_clear_text(rec: dict[str, Any]) -> str:
     for k, p in enumerate(rec["picks"]):
         what = "ok" if p["success"] else f"FAILED: {p['failure']}"
         lines.append(
-            f"  pick {k + 1}: instance {p['instance']} (score {p['score']:.2f}) {what}; "
+            f"  pick {k + 1}: instance {p['instance']} (score {p['score']:.2f}"
+            f"{', unsure pose' if p.get('unsure') else ''}) {what}; "
             f"{p['time_s']:.1f} s ({p['perception_s']:.1f} s perception, {p['views']} view(s))"
         )
     lines += _fault_lines(rec)

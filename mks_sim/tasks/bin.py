@@ -12,7 +12,7 @@ import logging
 import time
 import tomllib
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -364,6 +364,9 @@ class Pick:
             on its side or upside down is grasped tilted).
         passenger_points: points of other parts the range finder saw lifted with the held
             one at the travel height (:func:`passenger_points`; 0: none seen).
+        unsure: the instance was one whose pose its points do not pin down
+            (``Instances.unsure``), picked because no other was left
+            (:meth:`BinPicker.unsure_left`).
     """
 
     instance: int
@@ -377,6 +380,7 @@ class Pick:
     body: str | None
     tilt_deg: float = 0.0
     passenger_points: int = 0
+    unsure: bool = False
 
     def to_json(self) -> dict[str, Any]:
         """The CLI's record of the pick."""
@@ -392,6 +396,7 @@ class Pick:
             "body": self.body,
             "tilt_deg": round(self.tilt_deg, 1),
             "passenger_points": self.passenger_points,
+            "unsure": self.unsure,
         }
 
 
@@ -575,6 +580,29 @@ class BinPicker:
         self.faults_seen.update(self.faults)
         self.perception_s = time.perf_counter() - t
         return list(self.sensed.instances.instances)
+
+    def unsure_left(self, avoid: Sequence[np.ndarray] = ()) -> list[Any]:
+        """When the last sensing reported nothing: its unsure instances (found, their pose not
+        pinned down by their points, ``Instances.unsure``) whose origin is farther than
+        :data:`FAILED_NEAR_M` from every point in ``avoid`` (where picks failed), best score
+        first. They become the sensing's instances, so that :meth:`grasps` plans on them: a
+        part whose pose is only unsure is tried rather than left in the bin with "nothing
+        found". [] (the sensing unchanged) when there are none."""
+        insts = self.sensed.instances
+        if insts.instances:
+            return []
+        left = [
+            u for u in insts.unsure
+            if all(np.linalg.norm(u.matrix[:3, 3] - f) >= FAILED_NEAR_M for f in avoid)
+        ]  # fmt: skip
+        if not left:
+            return []
+        left.sort(key=lambda u: -u.score)
+        rest = tuple(u for u in insts.unsure if all(u is not v for v in left))
+        self.sensed = replace(
+            self.sensed, instances=replace(insts, instances=tuple(left), unsure=rest)
+        )
+        return left
 
     # -- active sensing ----------------------------------------------------------------------
     def _capture(self, held: dict[str, Any], device: str) -> bool:
@@ -922,6 +950,11 @@ def clear_bin(
         except MksError as exc:
             stopped = f"sensing failed: {exc}"
             break
+        unsure = False
+        if not found:
+            # only parts whose pose is unsure left (and not where a pick failed): try them
+            found = robot.unsure_left(failed_at)
+            unsure = bool(found)
         if not found:
             stopped = "nothing found"
             break
@@ -1009,6 +1042,7 @@ def clear_bin(
                 body,
                 robot.last_tilt_deg,
                 robot.last_passengers,
+                unsure,
             )  # fmt: skip
         )
         if stopped.startswith("simulation failed"):
