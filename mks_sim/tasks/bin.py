@@ -329,6 +329,12 @@ RELEASE_GAP_M = 0.015
 TIPS_BELOW_PINCH_M = 0.018
 #: A failed pick within this distance of an instance's estimate puts that instance last.
 FAILED_NEAR_M = 0.015
+
+
+def _near_failed(T: np.ndarray, failed_at: Sequence[np.ndarray]) -> bool:
+    """An estimate's origin lies within :data:`FAILED_NEAR_M` of where a pick failed."""
+    return any(np.linalg.norm(T[:3, 3] - f) < FAILED_NEAR_M for f in failed_at)
+
 #: Fingers closed beyond this (rad; 1.35 = fully closed) hold nothing: the narrowest grasp the
 #: bin asks of the synthesis (:data:`BIN_MIN_WIDTH_M`) closes the pads at ~1.2 rad
 #: (grasp.PAD_APERTURE_M).
@@ -591,10 +597,7 @@ class BinPicker:
         insts = self.sensed.instances
         if insts.instances:
             return []
-        left = [
-            u for u in insts.unsure
-            if all(np.linalg.norm(u.matrix[:3, 3] - f) >= FAILED_NEAR_M for f in avoid)
-        ]  # fmt: skip
+        left = [u for u in insts.unsure if not _near_failed(u.matrix, avoid)]
         if not left:
             return []
         left.sort(key=lambda u: -u.score)
@@ -962,10 +965,7 @@ def clear_bin(
         # with another instance resting on them (it would be carried along and dropped)
         covered = [covered_points(robot.sensed, i, robot.obj) > COVERED_POINTS for i in
                    range(len(found))]  # fmt: skip
-        near_failed = [
-            any(np.linalg.norm(inst.matrix[:3, 3] - f) < FAILED_NEAR_M for f in failed_at)
-            for inst in found
-        ]
+        near_failed = [_near_failed(inst.matrix, failed_at) for inst in found]
         order = sorted(range(len(found)), key=lambda i: (near_failed[i], covered[i]))
         chosen, blocked, no_pair = _choose_grasp(
             robot.grasps, order, near_failed, robot.clear_of_neighbours
