@@ -236,8 +236,9 @@ def run_localize_all(
         ``{"scene", "object", "seed", "instances": [{"matrix", "score", "visible_fraction",
         "error": {"position_mm", "rotation_deg"}, "correct", "stability"}], "found",
         "present", "false_positives", "missed", "unsure" (instances found but not reported:
-        their pose not pinned down, ``localize_all``'s ``min_stability``), "provenance", "views", "view_names", "view_log",
-        "faults", "warnings", "fault_reasons", "time_s", "timing_s", "failed_devices"}``
+        their pose not pinned down, ``localize_all``'s ``min_stability``), "provenance",
+        "views", "view_names", "view_log", "faults", "warnings", "fault_reasons", "time_s",
+        "timing_s", "failed_devices"}``
         (``error``, ``visible_fraction``, ``correct``, ``present``, ``false_positives`` and
         ``missed`` are evaluation from ground truth).
     """
@@ -537,11 +538,12 @@ class BinPicker:
 
         The first view is the range finder's (when it fails, the wrist camera's from the first
         reachable viewpoint; with both failed, the fixed cameras: the sensor's alternates).
-        When the best instance scores below the fused sensor's ``rescan_below`` or fewer than ``min_pad_points`` sensed points lie near a pad contact
-        of its best grasp, the arm takes the wrist camera to the candidate viewpoint that sees
-        most of that instance's predicted surface not seen yet, and the views are fused and
-        localized again (up to ``max_views``). ``views`` and ``view_log`` say what was done;
-        a failed device is named in ``faults`` and the views go on without it.
+        When the best instance scores below the fused sensor's ``rescan_below`` or fewer than
+        ``min_pad_points`` sensed points lie near a pad contact of its best grasp, the arm
+        takes the wrist camera to the candidate viewpoint that sees most of that instance's
+        predicted surface not seen yet, and the views are fused and localized again (up to
+        ``max_views``). ``views`` and ``view_log`` say what was done; a failed device is
+        named in ``faults`` and the views go on without it.
 
         Raises:
             MksError: sensing failed (every way of the points sensor).
