@@ -9,6 +9,15 @@ import pytest
 from mks_sim.tasks.bin import run_clear_bin
 
 
+def _bin_box():
+    """The shipped bin scene's output box (worlds/bin.toml ``[output_box]``)."""
+    from mks_sim.sim.scenes import build_scene
+
+    box = build_scene("bin").output_box
+    assert box is not None
+    return box
+
+
 def _miss_first(index, plan):
     """The first pick's grasp is made to miss: it closes 6 cm above where it should."""
     if index != 0:
@@ -130,14 +139,16 @@ def test_a_held_part_is_lowered_into_the_box_middle_first(hang_m):
 
     R = down_rotation(0.7)
     hand = _FakeHand([0.05, -0.02, table_z + 0.16], R)
-    assert binmod._carry_to_box(hand, corners_pinch, table_z, None) == ""
+    box = _bin_box()
+    assert binmod._carry_to_box(hand, corners_pinch, table_z, None, box) == ""
     W = corners_pinch @ R.T + hand.pos
-    assert np.allclose(0.5 * (W[:, :2].min(0) + W[:, :2].max(0)), binmod.OUTPUT_BOX_XY)
+    assert np.allclose(0.5 * (W[:, :2].min(0) + W[:, :2].max(0)), box.center_xy)
     lowest = min(W[:, 2].min(), hand.pos[2] - binmod.TIPS_BELOW_PINCH_M)
-    assert lowest == pytest.approx(table_z + binmod.BOX_WALL_M + binmod.RELEASE_GAP_M)
+    assert lowest == pytest.approx(table_z + box.wall_height_m + binmod.RELEASE_GAP_M)
+    walls = max(binmod.BIN_WALL_M, box.wall_height_m)
     for p in hand.path[:-1]:  # the carry, before the last move down into the box
         low = min((corners_pinch @ R.T + p)[:, 2].min(), p[2] - binmod.TIPS_BELOW_PINCH_M)
-        assert low >= table_z + binmod.BIN_WALL_M + binmod.CARRY_MARGIN_M - 1e-9
+        assert low >= table_z + walls + binmod.CARRY_MARGIN_M - 1e-9
 
 
 def test_pads_pressed_on_each_other_hold_nothing():
@@ -220,12 +231,13 @@ def test_parts_let_go_in_the_box_do_not_overlap():
     from mks_sim.tasks import bin as binmod
 
     half = np.array([0.05, 0.03])
+    box = _bin_box()
     placed: list[np.ndarray] = []
     for _ in range(6):
-        m = binmod.place_middle(half, placed)
+        m = binmod.place_middle(half, placed, box)
         placed.append(np.concatenate([m - half, m + half]))
-    c = np.asarray(binmod.OUTPUT_BOX_XY)
-    wall_inside = np.asarray(binmod.OUTPUT_BOX_HALF_XY) - 0.004  # the walls are 8 mm thick
+    c = np.asarray(box.center_xy)
+    wall_inside = np.asarray(box.inner_half_xy)
     for r in placed:
         assert np.all(r[:2] >= c - wall_inside) and np.all(r[2:] <= c + wall_inside), r
     for i in range(6):
@@ -471,19 +483,20 @@ def test_a_part_that_will_fall_over_is_let_go_with_room_to_fall(before):
 
     table_z = 0.5
     flat = np.array([0.05, 0.03])
+    box = _bin_box()
     placed: list[np.ndarray] = []
     for _ in range(before):
-        m = binmod.place_middle(flat, placed)
+        m = binmod.place_middle(flat, placed, box)
         placed.append(np.concatenate([m - flat, m + flat]))
     # on its side: 100 mm along the pinch frame's y, 30 mm along its x (the closing axis),
     # 60 mm down from the fingers
     corners = np.array(list(itertools.product((-0.015, 0.015), (-0.05, 0.05), (0.0, 0.06))))
     hand = _TurningHand([0.05, -0.02, table_z + 0.16], down_rotation(0.3))
-    assert binmod._carry_to_box(hand, corners, table_z, None, placed=placed) == ""
+    assert binmod._carry_to_box(hand, corners, table_z, None, box, placed=placed) == ""
     W = corners @ hand.R.T + hand.pos
     W[:, 2] -= W[:, 2].min() - table_z  # let go: it drops onto the floor
-    inside = np.asarray(binmod.OUTPUT_BOX_HALF_XY) - 0.004  # the walls are 8 mm thick
-    c = np.asarray(binmod.OUTPUT_BOX_XY)
+    inside = np.asarray(box.inner_half_xy)
+    c = np.asarray(box.center_xy)
     fallen = _tipped_over(W)
     assert len(fallen) == 2
     for F in fallen:

@@ -175,17 +175,23 @@ def test_the_bundle_is_let_go_inside_the_box(before):
     held = corners + [0.0, 0.0, -0.03]  # pinch frame
     turned = Rotation.from_euler("z", 30, degrees=True).as_matrix()
     rider = corners @ turned.T + np.array([0.0, 0.15, -0.09])
-    inside = np.asarray(binmod.OUTPUT_BOX_HALF_XY) - 0.004  # the walls are 8 mm thick
-    c = np.asarray(binmod.OUTPUT_BOX_XY)
-    rim = table_z + binmod.BOX_WALL_M
+    from mks_sim.sim.scenes import build_scene
+
+    box = build_scene("bin").output_box
+    assert box is not None
+    inside = np.asarray(box.inner_half_xy)
+    c = np.asarray(box.center_xy)
+    rim = table_z + box.wall_height_m
 
     def carried(passengers):
         placed: list[np.ndarray] = []
         for _ in range(before):
-            m = binmod.place_middle(np.array([0.05, 0.03]), placed)
+            m = binmod.place_middle(np.array([0.05, 0.03]), placed, box)
             placed.append(np.concatenate([m - [0.05, 0.03], m + [0.05, 0.03]]))
         hand = _TurningHand([0.05, -0.02, table_z + 0.16], 0.4)
-        assert binmod._carry_to_box(hand, held, table_z, None, placed=placed, **passengers) == ""
+        assert (
+            binmod._carry_to_box(hand, held, table_z, None, box, placed=placed, **passengers) == ""
+        )
         return hand
 
     hand = carried({"passengers": rider})
@@ -194,7 +200,10 @@ def test_the_bundle_is_let_go_inside_the_box(before):
     assert B[:, 2].min() >= rim + binmod.RELEASE_GAP_M - 1e-9
     for pos, R in hand.path[:-1]:  # over the walls, before the last move down
         low = (np.concatenate([held, rider]) @ R.T + pos)[:, 2].min()
-        assert low >= table_z + binmod.BIN_WALL_M + binmod.CARRY_MARGIN_M - 1e-9
+        assert (
+            low
+            >= table_z + max(binmod.BIN_WALL_M, box.wall_height_m) + binmod.CARRY_MARGIN_M - 1e-9
+        )
     alone = carried({})
     B = np.concatenate([held, rider]) @ alone.R.T + alone.pos
     assert not (np.all(np.abs(B[:, :2] - c) <= inside) and B[:, 2].min() > rim)
@@ -215,10 +224,10 @@ def test_passengers_on_a_tuning_bin_are_seen_and_land_in_the_box(monkeypatch):
     lifted: list[list[str]] = []
     carry = binmod._carry_to_box
 
-    def watched(ctl, part_pinch, table_z, rotation, **kw):
+    def watched(ctl, part_pinch, table_z, rotation, box, **kw):
         z = {b: truth.object_to_world(world, b)[2, 3] for b in bodies}
         lifted.append([b for b in bodies if z[b] > table_z + 0.07])
-        return carry(ctl, part_pinch, table_z, rotation, **kw)
+        return carry(ctl, part_pinch, table_z, rotation, box, **kw)
 
     monkeypatch.setattr(binmod, "_carry_to_box", watched)
     with make_devices(world.model, world.data, np.random.default_rng(seed), {}) as devices:

@@ -49,6 +49,79 @@ def test_fixture_is_a_static_box_on_the_support():
     np.testing.assert_allclose(geom.pos, (0.2, 0.1, 0.75 + 0.03))
 
 
+def test_output_box_fields_are_checked():
+    base = {"object": [{"name": "cube"}]}
+    box = {"center": [-0.3, 0.2], "half": [0.1, 0.08]}
+    for extra, match in [
+        ({"center": [0.1]}, r"\[output_box\]: field 'center': expected \[a, b\]"),
+        ({"half": [0.1, 0.004]}, r"\[output_box\]: field 'half': expected half sides over"),
+        ({"wall_height": 0}, r"\[output_box\]: field 'wall_height': expected metres"),
+        ({"wall_thickness": True}, r"\[output_box\]: field 'wall_thickness': expected metres"),
+        ({"depth": 0.1}, r"\[output_box\]: unknown field"),
+    ]:
+        with pytest.raises(SpecError, match=match):
+            scene_from_doc({**base, "output_box": {**box, **extra}}, "t.toml")
+    assert scene_from_doc(base, "t.toml").output_box is None
+
+
+def test_output_box_walls_stand_where_the_scene_says():
+    """The compiled model's four wall boxes (MuJoCo's geom sizes and positions) enclose
+    exactly the declared inner rectangle, from the table up to the declared rim."""
+    import mujoco
+
+    from mks_sim.sim import names
+
+    spec = scene_from_doc(
+        {
+            "object": [{"name": "cube"}],
+            "output_box": {"center": [-0.3, 0.2], "half": [0.1, 0.08], "wall_height": 0.05},
+        },
+        "t.toml",
+    )
+    box = spec.output_box
+    assert box is not None and box.wall_thickness_m == 0.008
+    model = mujoco.MjModel.from_xml_string(spec.root.to_xml_string(), spec.root.get_assets())
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    lo, hi = [], []
+    for i in range(4):
+        g = model.geom(f"output_box_wall_{i}")
+        p, h = data.geom_xpos[g.id], model.geom_size[g.id]
+        assert p[2] - h[2] == pytest.approx(names.TABLE_TOP_Z)
+        assert p[2] + h[2] == pytest.approx(names.TABLE_TOP_Z + 0.05)
+        lo.append(p - h)
+        hi.append(p + h)
+    lo_a, hi_a = np.array(lo), np.array(hi)
+    # inner faces: the walls' sides that face the middle
+    c = np.array([-0.3, 0.2])
+    inner = np.array(box.inner_half_xy)
+    assert inner == pytest.approx([0.096, 0.076])
+    for axis in (0, 1):
+        faces = [hi_a[i, axis] for i in range(4) if hi_a[i, axis] < c[axis]]
+        faces += [lo_a[i, axis] for i in range(4) if lo_a[i, axis] > c[axis]]
+        assert sorted(faces) == pytest.approx([c[axis] - inner[axis], c[axis] + inner[axis]])
+    # closed: every corner of the inner rectangle is covered by two walls
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            q = c + [sx * (inner[0] + 0.002), sy * (inner[1] + 0.002)]
+            inside = (lo_a[:, 0] <= q[0]) & (q[0] <= hi_a[:, 0])
+            inside &= (lo_a[:, 1] <= q[1]) & (q[1] <= hi_a[:, 1])
+            assert inside.sum() == 2, q
+
+
+def test_clear_bin_needs_an_output_box(tmp_path):
+    """A bin scene without [output_box] is a clear one-line error, not a traceback deep in
+    the carry."""
+    from mks_sim.sim.scenes import scene_file
+    from mks_sim.tasks.bin import run_clear_bin
+
+    text = scene_file("bin").read_text(encoding="utf-8")
+    f = tmp_path / "no_box.toml"
+    f.write_text(text.split("\n[output_box]")[0], encoding="utf-8")
+    with pytest.raises(SpecError, match=r"no \[output_box\]: clear_bin needs one"):
+        run_clear_bin(0, scene=f, count=1)
+
+
 def _inside_bin(world) -> list[str]:
     """Instances not in the bin (evaluation from ground truth): the hull's centroid outside
     the walls' inner box, the lowest point above the walls' top (resting on a rim) or below

@@ -66,6 +66,30 @@ class Placement:
 
 
 @dataclass(frozen=True)
+class OutputBox:
+    """A walled box on the support that picked parts are placed in (``[output_box]``: the
+    bin scene's; scene data, a workcell's layout -- not ground truth).
+
+    Attributes:
+        center_xy: world xy of its middle (m).
+        half_xy: half sides between the walls' centres (m).
+        wall_height_m: the walls' height above the support (its rim).
+        wall_thickness_m: the walls' thickness.
+    """
+
+    center_xy: tuple[float, float]
+    half_xy: tuple[float, float]
+    wall_height_m: float
+    wall_thickness_m: float
+
+    @property
+    def inner_half_xy(self) -> tuple[float, float]:
+        """Half sides between the walls' inner faces (m)."""
+        t = 0.5 * self.wall_thickness_m
+        return self.half_xy[0] - t, self.half_xy[1] - t
+
+
+@dataclass(frozen=True)
 class SceneSpec:
     """A built (uncompiled) scene.
 
@@ -84,6 +108,7 @@ class SceneSpec:
         source: the scene file (None for scenes built in code).
         flat_parts: the ``[[flat_part]]`` entries (what each flat part is: evaluation's
             scene list, :func:`mks_sim.sim.truth.scene1_manifest`).
+        output_box: the ``[output_box]`` picked parts go to (None: the scene has none).
     """
 
     name: str
@@ -97,6 +122,7 @@ class SceneSpec:
     placements: Mapping[str, Placement] = field(default_factory=dict)
     source: Path | None = None
     flat_parts: tuple[flatparts.FlatPart, ...] = ()
+    output_box: OutputBox | None = None
 
     @property
     def models(self) -> dict[str, str]:
@@ -263,10 +289,12 @@ _SCENE_KEYS = {"name", "description", "region", "support", "noslip_iterations"}
 MAX_NOSLIP_ITERATIONS = 1000
 _OBJECT_KEYS = {"name", "count", "at", "yaw_deg", "pose", "x", "y", "yaw", "on", "gap_m"}
 _FIXTURE_KEYS = {"size", "at", "z", "rgb"}
+_OUTPUT_BOX_KEYS = {"center", "half", "wall_height", "wall_thickness", "rgb"}
 _CLUTTER_KEYS = {"shape", "size", "at", "rgb", "dots"}
 _LIGHT_KEYS = {"name", "pos", "dir", "diffuse", "directional"}
 _TOP_KEYS = {
-    "scene", "table", "object", "clutter", "light", "fixture", "tray", "flat_parts", "flat_part"
+    "scene", "table", "object", "clutter", "light", "fixture", "tray", "flat_parts", "flat_part",
+    "output_box",
 }  # fmt: skip
 
 
@@ -502,6 +530,9 @@ def scene_from_doc(
                 root.find("body", body).quat = (math.cos(yaw0 / 2), 0.0, 0.0, math.sin(yaw0 / 2))
     for i, entry in enumerate(_tables(doc, "fixture", str(path))):
         _add_fixture(root, i, entry, f"{path}: fixture {i}", support_z)
+    output_box = None
+    if "output_box" in doc:
+        output_box = _add_output_box(root, doc["output_box"], f"{path}: [output_box]", support_z)
     for i, entry in enumerate(_tables(doc, "clutter", str(path))):
         where = f"{path}: clutter {i}"
         _unknown(entry, _CLUTTER_KEYS, where)
@@ -530,7 +561,43 @@ def scene_from_doc(
         placements=placements,
         source=path if path.is_file() else None,
         flat_parts=flat_parts,
+        output_box=output_box,
     )
+
+
+def _add_output_box(root: mjcf.RootElement, entry: Any, where: str, support_z: float) -> OutputBox:
+    """The ``[output_box]`` table: four static walls on the support around ``center``,
+    ``half`` apart (between the walls' centres), ``wall_height`` high (default 0.06 m),
+    ``wall_thickness`` thick (default 0.008 m). Visible to the sensors and collides."""
+    _unknown(entry, _OUTPUT_BOX_KEYS, where)
+    c = _pair(entry.get("center"), where, "center")
+    h = _pair(entry.get("half"), where, "half")
+    height = entry.get("wall_height", 0.06)
+    thick = entry.get("wall_thickness", 0.008)
+    for key, v in (("wall_height", height), ("wall_thickness", thick)):
+        if isinstance(v, bool) or not isinstance(v, int | float) or not 0 < v < 1:
+            raise SpecError(f"{where}: field {key!r}: expected metres in (0, 1), got {v!r}")
+    if min(h) <= float(thick):
+        raise SpecError(
+            f"{where}: field 'half': expected half sides over the wall thickness "
+            f"({thick} m), got {list(h)}"
+        )
+    rgb = _vec(entry.get("rgb", [0.45, 0.35, 0.3]), 3, where, "rgb")
+    hz, ht = 0.5 * float(height), 0.5 * float(thick)
+    walls = [  # (half extents, centre): the x walls span the y sides and the corners
+        ((ht, h[1] + ht, hz), (c[0] + s * h[0], c[1])) for s in (1.0, -1.0)
+    ] + [((h[0] + ht, ht, hz), (c[0], c[1] + s * h[1])) for s in (1.0, -1.0)]
+    for i, (size, xy) in enumerate(walls):
+        root.worldbody.add(
+            "geom",
+            name=f"output_box_wall_{i}",
+            type="box",
+            size=list(size),
+            pos=(xy[0], xy[1], support_z + hz),
+            rgba=(*rgb, 1.0),
+            friction=objects.OBJECT_FRICTION,
+        )
+    return OutputBox(c, h, float(height), float(thick))
 
 
 def _add_fixture(

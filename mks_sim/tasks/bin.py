@@ -22,7 +22,7 @@ from scipy.ndimage import maximum_filter
 
 from mks_sim.errors import SpecError
 from mks_sim.sensing.faults import fault_fields
-from mks_sim.sim.scenes import scene_file, scene_from_doc
+from mks_sim.sim.scenes import OutputBox, scene_file, scene_from_doc
 from mks_sim.sim.world import World
 
 __all__ = [
@@ -245,6 +245,7 @@ def run_localize_all(
     from mks_sim.devices import DeviceFaults, make_devices
 
     world = bin_world(seed, count=count, object=object_name, scene=scene, models=models)
+    output_box(world)  # somewhere to put the parts, before anything moves
     name = object_name or next(iter(world.scene.models.values()))
     faults = {dev: DeviceFaults(failed=True) for dev in fail}
     devices = make_devices(world.model, world.data, np.random.default_rng(seed), faults)
@@ -299,10 +300,9 @@ def run_localize_all(
 
 # --------------------------------------------------------------------------- clear_bin
 
-#: Output box beside the bin (worlds/bin.toml: 240 x 200 mm between its walls' centres,
-#: centred here): parts are released this high above the table over its centre.
-OUTPUT_BOX_XY = (-0.314, 0.22)
-OUTPUT_BOX_HALF_XY = (0.12, 0.1)
+#: The output box is the scene's ``[output_box]`` (:class:`mks_sim.sim.scenes.OutputBox`,
+#: worlds/bin.toml); with no pinch point to plan from, a part is let go this high above the
+#: table over its middle.
 RELEASE_HEIGHT_M = 0.14
 #: A part is let go with its predicted footprint this far inside the box's walls' centres
 #: (the walls are 8 mm thick), where it overlaps least the parts let go before. Not less:
@@ -314,14 +314,13 @@ PLACE_GRID = 23
 #: A part carried top-down is turned about the vertical by at most 90 degrees, in these
 #: steps, so that its footprint's bounding rectangle is smallest (parts lie side by side).
 PLACE_TURN_STEP_DEG = 15.0
-#: The box's walls are this high (worlds/bin.toml: 30 mm), the bin's 40 mm: a carried part's
-#: lowest point keeps ``CARRY_MARGIN_M`` above the higher of them on the way.
-BOX_WALL_M = 0.03
+#: The bin's walls are this high (worlds/bin.toml: 40 mm); a carried part's lowest point keeps
+#: ``CARRY_MARGIN_M`` above them and the output box's walls on the way.
 BIN_WALL_M = 0.04
 CARRY_MARGIN_M = 0.02
 #: A held part is lowered over the box until its lowest point (predicted from the estimate
 #: it was grasped at, carried by the hand) is this high above the box's rim, then let go:
-#: dropped from RELEASE_HEIGHT_M, a 100 mm part bounced out of the 30 mm box (tuning bins
+#: dropped from RELEASE_HEIGHT_M, a 100 mm part bounced out of a 30 mm box (tuning bins
 #: 4001, 4004: 5 of 8 failed picks). Not lower: the parts already in the box are not sensed,
 #: and a part pressed into them by the arm overflowed the simulator's contacts (seed 4001).
 RELEASE_GAP_M = 0.015
@@ -335,6 +334,7 @@ FAILED_NEAR_M = 0.015
 def _near_failed(T: np.ndarray, failed_at: Sequence[np.ndarray]) -> bool:
     """An estimate's origin lies within :data:`FAILED_NEAR_M` of where a pick failed."""
     return any(np.linalg.norm(T[:3, 3] - f) < FAILED_NEAR_M for f in failed_at)
+
 
 #: Fingers closed beyond this (rad; 1.35 = fully closed) hold nothing: the narrowest grasp the
 #: bin asks of the synthesis (:data:`BIN_MIN_WIDTH_M`) closes the pads at ~1.2 rad
@@ -407,15 +407,38 @@ class Pick:
         }
 
 
+#: A part counts as in the box with its origin at most this high above the rim (resting on
+#: the parts below it; the 30 mm box's criterion was 80 mm above the table).
+IN_BOX_ABOVE_RIM_M = 0.05
+
+
+def output_box(world: World) -> OutputBox:
+    """The scene's ``[output_box]``.
+
+    Raises:
+        SpecError: the scene has none (``clear_bin`` has nowhere to put the parts).
+    """
+    box = world.scene.output_box
+    if box is None:
+        raise SpecError(
+            f"scene {world.scene.name!r} has no [output_box]: clear_bin needs one to place "
+            "the picked parts in"
+        )
+    return box
+
+
 def in_output_box(world: World, body: str) -> bool:
-    """The body's origin is inside the output box, below its rim (evaluation only)."""
+    """The body's origin is inside the output box's walls, no higher than
+    :data:`IN_BOX_ABOVE_RIM_M` above its rim (evaluation only)."""
     from mks_sim.sim import truth
 
+    box = output_box(world)
     p = truth.object_to_world(world, body)[:3, 3]
+    c, h = box.center_xy, box.half_xy
     return bool(
-        abs(p[0] - OUTPUT_BOX_XY[0]) < OUTPUT_BOX_HALF_XY[0]
-        and abs(p[1] - OUTPUT_BOX_XY[1]) < OUTPUT_BOX_HALF_XY[1]
-        and p[2] < world.scene.support_z + 0.08
+        abs(p[0] - c[0]) < h[0]
+        and abs(p[1] - c[1]) < h[1]
+        and p[2] < world.scene.support_z + box.wall_height_m + IN_BOX_ABOVE_RIM_M
     )
 
 
@@ -532,6 +555,11 @@ class BinPicker:
         self.failed_grasps: list[Any] = []  # grasps the arm could not reach (not tried again)
         self.last_passengers = 0  # points of parts lifted with the last pick's part
         self.retry_failed = False  # ... unless the bin has stalled (:meth:`_untried`)
+
+    @property
+    def box(self) -> OutputBox:
+        """The scene's output box (:func:`output_box`; SpecError without one)."""
+        return output_box(self.world)
 
     def sense(self) -> list[Any]:
         """Every instance found, best score first (``Instance``), from one view or more.
@@ -845,12 +873,12 @@ class BinPicker:
             self.last_passengers = len(riders)
             failure = _carry_to_box(
                 ctl, V @ part_to_pinch[:3, :3].T + part_to_pinch[:3, 3], self.table_z, keep,
-                placed=self.placed, passengers=riders,
+                self.box, placed=self.placed, passengers=riders,
             )  # fmt: skip
             ok = not failure
         elif ok:
-            box = np.array([*OUTPUT_BOX_XY, self.table_z + RELEASE_HEIGHT_M])
-            ctl.move_to(box, ctl.pinch_yaw(), spacing_m=0.03, rotation=keep)
+            over = np.array([*self.box.center_xy, self.table_z + RELEASE_HEIGHT_M])
+            ctl.move_to(over, ctl.pinch_yaw(), spacing_m=0.03, rotation=keep)
         ctl.open(50)  # the part falls free before the hand moves (15 periods dragged it out)
         up = ctl.pinch_pos()
         up[2] = max(up[2], self.table_z + CLEARANCE_ABOVE_M)
@@ -933,6 +961,10 @@ def clear_bin(
         ``{"present", "picked", "cleared_fraction", "picks": [Pick.to_json()], "time_s",
         "stopped", "pushes"}`` (``picked``, ``present``, ``success`` are evaluation from
         ground truth).
+
+    Raises:
+        SpecError: the scene has no ``[output_box]`` (at the first part carried to it;
+            :func:`run_clear_bin` checks before it starts).
     """
     from dm_control.rl.control import PhysicsError
 
@@ -1467,9 +1499,9 @@ def _rect_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.clip(w, 0.0, None) * np.clip(h, 0.0, None)
 
 
-def place_middle(half_xy: np.ndarray, placed: Sequence[np.ndarray]) -> np.ndarray:
-    """Where in the output box a part's middle goes: on a :data:`PLACE_GRID` grid over the
-    room its footprint leaves (``half_xy``, the half sides of its bounding rectangle,
+def place_middle(half_xy: np.ndarray, placed: Sequence[np.ndarray], box: OutputBox) -> np.ndarray:
+    """Where in the output ``box`` a part's middle goes: on a :data:`PLACE_GRID` grid over
+    the room its footprint leaves (``half_xy``, the half sides of its bounding rectangle,
     :data:`PLACE_MARGIN_M` inside the walls' centres), the place whose rectangle overlaps
     least those of the parts let go before (``placed``: rows (xmin, ymin, xmax, ymax), the
     robot's own record, nothing sensed); of equals, the first from the box's -x, -y corner
@@ -1477,10 +1509,10 @@ def place_middle(half_xy: np.ndarray, placed: Sequence[np.ndarray]) -> np.ndarra
     footprint wider than the box goes to its centre along that side.
     """
     half = np.asarray(half_xy, dtype=float)
-    room = np.maximum(np.asarray(OUTPUT_BOX_HALF_XY) - PLACE_MARGIN_M - half, 0.0)
+    room = np.maximum(np.asarray(box.half_xy) - PLACE_MARGIN_M - half, 0.0)
     u = np.linspace(-1.0, 1.0, PLACE_GRID)
     grid = np.stack(np.meshgrid(u, u, indexing="ij"), axis=-1).reshape(-1, 2) * room
-    grid += np.asarray(OUTPUT_BOX_XY, dtype=float)
+    grid += np.asarray(box.center_xy, dtype=float)
     rects = np.hstack([grid - half, grid + half])
     overlap = np.zeros(len(grid))
     for r in np.asarray(placed, dtype=float).reshape(-1, 4):
@@ -1643,6 +1675,7 @@ def _carry_to_box(
     part_pinch: np.ndarray,
     table_z: float,
     rotation: np.ndarray | None,
+    box: OutputBox,
     *,
     placed: list[np.ndarray] | None = None,
     passengers: np.ndarray | None = None,
@@ -1655,6 +1688,7 @@ def _carry_to_box(
             grasp, carried by the hand: the robot's belief, no ground truth), metres.
         table_z: the table top (the box's floor), metres.
         rotation: the hand's rotation to keep (a tilted grasp), or None (top-down, its yaw).
+        box: the output box (:func:`output_box`).
         placed: the footprints (xmin, ymin, xmax, ymax) of the parts let go in the box
             before (:func:`place_middle`); this part's is appended once its place is chosen
             (also when it is then dropped on the way). None: the box's centre.
@@ -1676,8 +1710,9 @@ def _carry_to_box(
     if passengers is not None and len(passengers):
         A = np.vstack([W, np.asarray(passengers, dtype=float) @ R.T + pos])
     below = max(pos[2] - float(A[:, 2].min()), TIPS_BELOW_PINCH_M)
-    travel_z = max(pos[2], table_z + max(BIN_WALL_M, BOX_WALL_M) + CARRY_MARGIN_M + below)
-    release_z = table_z + BOX_WALL_M + RELEASE_GAP_M + below
+    rim = box.wall_height_m
+    travel_z = max(pos[2], table_z + max(BIN_WALL_M, rim) + CARRY_MARGIN_M + below)
+    release_z = table_z + rim + RELEASE_GAP_M + below
     turn = 0.0
     if rotation is None and placed is not None:
         turn = _turn_to_fit(A, pos)
@@ -1688,10 +1723,10 @@ def _carry_to_box(
     lo, hi = Wxy.min(axis=0), Wxy.max(axis=0)
     middle_off = 0.5 * (lo + hi) - pos[:2]
     if placed is None:
-        middle = np.asarray(OUTPUT_BOX_XY, dtype=float)
+        middle = np.asarray(box.center_xy, dtype=float)
     else:
         room = fall_room(W, 0.5 * (hi - lo))
-        middle = place_middle(room, placed)
+        middle = place_middle(room, placed, box)
         placed.append(np.concatenate([middle - room, middle + room]))
     over = np.array([*(middle - middle_off), travel_z])
     if travel_z > pos[2] + 0.005:
@@ -1885,10 +1920,15 @@ def run_clear_bin(
     models: Sequence[str | Path] = (),
 ) -> dict[str, Any]:
     """Build the bin from ``seed`` and clear it (:func:`clear_bin`): the record of
-    ``mks-sim grasp --task clear_bin`` (plus ``seed``, ``object``, ``failed_devices``)."""
+    ``mks-sim grasp --task clear_bin`` (plus ``seed``, ``object``, ``failed_devices``).
+
+    Raises:
+        SpecError: the scene has no ``[output_box]``.
+    """
     from mks_sim.devices import DeviceFaults, make_devices
 
     world = bin_world(seed, count=count, object=object_name, scene=scene, models=models)
+    output_box(world)  # somewhere to put the parts, before anything moves
     name = object_name or next(iter(world.scene.models.values()))
     faults = {dev: DeviceFaults(failed=True) for dev in fail}
     with make_devices(world.model, world.data, np.random.default_rng(seed), faults) as devices:
