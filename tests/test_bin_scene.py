@@ -109,17 +109,29 @@ def test_output_box_walls_stand_where_the_scene_says():
             assert inside.sum() == 2, q
 
 
-def test_clear_bin_needs_an_output_box(tmp_path):
-    """A bin scene without [output_box] is a clear one-line error, not a traceback deep in
-    the carry."""
+class _Reached(Exception):
+    pass
+
+
+def _reached(*args, **kwargs):
+    raise _Reached
+
+
+def test_clear_bin_needs_an_output_box_and_localization_does_not(tmp_path, monkeypatch):
+    """A bin scene without [output_box]: clearing it is a one-line error before the devices
+    are made (nothing moves), localizing it goes on to make them."""
+    import mks_sim.devices
     from mks_sim.sim.scenes import scene_file
-    from mks_sim.tasks.bin import run_clear_bin
+    from mks_sim.tasks.bin import run_clear_bin, run_localize_all
 
     text = scene_file("bin").read_text(encoding="utf-8")
     f = tmp_path / "no_box.toml"
     f.write_text(text.split("\n[output_box]")[0], encoding="utf-8")
+    monkeypatch.setattr(mks_sim.devices, "make_devices", _reached)
     with pytest.raises(SpecError, match=r"no \[output_box\]: clear_bin needs one"):
         run_clear_bin(0, scene=f, count=1)
+    with pytest.raises(_Reached):
+        run_localize_all(0, scene=f, count=1)
 
 
 def _inside_bin(world) -> list[str]:

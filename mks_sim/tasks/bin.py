@@ -245,7 +245,6 @@ def run_localize_all(
     from mks_sim.devices import DeviceFaults, make_devices
 
     world = bin_world(seed, count=count, object=object_name, scene=scene, models=models)
-    output_box(world)  # somewhere to put the parts, before anything moves
     name = object_name or next(iter(world.scene.models.values()))
     faults = {dev: DeviceFaults(failed=True) for dev in fail}
     devices = make_devices(world.model, world.data, np.random.default_rng(seed), faults)
