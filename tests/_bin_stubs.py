@@ -8,6 +8,15 @@ from typing import Any
 import pytest
 
 
+def bin_box() -> Any:
+    """The shipped bin scene's output box (worlds/bin.toml ``[output_box]``)."""
+    from mks_sim.sim.scenes import build_scene
+
+    box = build_scene("bin").output_box
+    assert box is not None
+    return box
+
+
 class StubPicker:
     """What a stub :class:`~mks_sim.tasks.bin.BinPicker` answers alike in every loop test:
     neighbours never block, the one body is ``part``, and it counts as picked once

@@ -9,15 +9,6 @@ import pytest
 from mks_sim.tasks.bin import run_clear_bin
 
 
-def _bin_box():
-    """The shipped bin scene's output box (worlds/bin.toml ``[output_box]``)."""
-    from mks_sim.sim.scenes import build_scene
-
-    box = build_scene("bin").output_box
-    assert box is not None
-    return box
-
-
 def _miss_first(index, plan):
     """The first pick's grasp is made to miss: it closes 6 cm above where it should."""
     if index != 0:
@@ -139,7 +130,9 @@ def test_a_held_part_is_lowered_into_the_box_middle_first(hang_m):
 
     R = down_rotation(0.7)
     hand = _FakeHand([0.05, -0.02, table_z + 0.16], R)
-    box = _bin_box()
+    from _bin_stubs import bin_box
+
+    box = bin_box()
     assert binmod._carry_to_box(hand, corners_pinch, table_z, None, box) == ""
     W = corners_pinch @ R.T + hand.pos
     assert np.allclose(0.5 * (W[:, :2].min(0) + W[:, :2].max(0)), box.center_xy)
@@ -231,7 +224,9 @@ def test_parts_let_go_in_the_box_do_not_overlap():
     from mks_sim.tasks import bin as binmod
 
     half = np.array([0.05, 0.03])
-    box = _bin_box()
+    from _bin_stubs import bin_box
+
+    box = bin_box()
     placed: list[np.ndarray] = []
     for _ in range(6):
         m = binmod.place_middle(half, placed, box)
@@ -483,7 +478,9 @@ def test_a_part_that_will_fall_over_is_let_go_with_room_to_fall(before):
 
     table_z = 0.5
     flat = np.array([0.05, 0.03])
-    box = _bin_box()
+    from _bin_stubs import bin_box
+
+    box = bin_box()
     placed: list[np.ndarray] = []
     for _ in range(before):
         m = binmod.place_middle(flat, placed, box)

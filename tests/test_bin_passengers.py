@@ -175,10 +175,9 @@ def test_the_bundle_is_let_go_inside_the_box(before):
     held = corners + [0.0, 0.0, -0.03]  # pinch frame
     turned = Rotation.from_euler("z", 30, degrees=True).as_matrix()
     rider = corners @ turned.T + np.array([0.0, 0.15, -0.09])
-    from mks_sim.sim.scenes import build_scene
+    from _bin_stubs import bin_box
 
-    box = build_scene("bin").output_box
-    assert box is not None
+    box = bin_box()
     inside = np.asarray(box.inner_half_xy)
     c = np.asarray(box.center_xy)
     rim = table_z + box.wall_height_m

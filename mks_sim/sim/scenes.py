@@ -588,15 +588,7 @@ def _add_output_box(root: mjcf.RootElement, entry: Any, where: str, support_z: f
         ((ht, h[1] + ht, hz), (c[0] + s * h[0], c[1])) for s in (1.0, -1.0)
     ] + [((h[0] + ht, ht, hz), (c[0], c[1] + s * h[1])) for s in (1.0, -1.0)]
     for i, (size, xy) in enumerate(walls):
-        root.worldbody.add(
-            "geom",
-            name=f"output_box_wall_{i}",
-            type="box",
-            size=list(size),
-            pos=(xy[0], xy[1], support_z + hz),
-            rgba=(*rgb, 1.0),
-            friction=objects.OBJECT_FRICTION,
-        )
+        _static_box(root, f"output_box_wall_{i}", size, xy, support_z, rgb)
     return OutputBox(c, h, float(height), float(thick))
 
 
@@ -615,12 +607,25 @@ def _add_fixture(
     if isinstance(z, bool) or not isinstance(z, int | float) or not math.isfinite(z):
         raise SpecError(f"{where}: field 'z': expected a number (metres), got {z!r}")
     rgb = _vec(entry.get("rgb", [0.35, 0.4, 0.5]), 3, where, "rgb")
+    _static_box(root, f"fixture_{index}", size, xy, support_z + float(z), rgb)
+
+
+def _static_box(
+    root: mjcf.RootElement,
+    name: str,
+    size: Sequence[float],
+    xy: Sequence[float],
+    bottom_z: float,
+    rgb: Sequence[float],
+) -> None:
+    """A static box geom (half extents ``size``) standing at ``xy`` with its bottom at
+    ``bottom_z``: visible to the sensors, colliding, never moving (fixtures, box walls)."""
     root.worldbody.add(
         "geom",
-        name=f"fixture_{index}",
+        name=name,
         type="box",
         size=list(size),
-        pos=(xy[0], xy[1], support_z + float(z) + size[2]),
+        pos=(xy[0], xy[1], bottom_z + size[2]),
         rgba=(*rgb, 1.0),
         friction=objects.OBJECT_FRICTION,
     )
