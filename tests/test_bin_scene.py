@@ -175,8 +175,11 @@ def test_bin_settles_deterministically_inside_the_tray_and_at_rest():
     4 s, ground truth); bin_world now settles until at rest. The same seed twice gives the
     same pile, to the bit."""
     a = bin_world(0, count=6)
-    b = bin_world(0, count=6)
-    np.testing.assert_array_equal(a.data.qpos, b.data.qpos)
+    # the same seed twice, the same pile to the bit (tuning bin 5: the same drop and settle
+    # until at rest, in 5 s instead of bin 0's 25 s)
+    b, c = bin_world(5, count=6), bin_world(5, count=6)
+    assert b.rest_steps > 0
+    np.testing.assert_array_equal(b.data.qpos, c.data.qpos)
     assert instance_bodies(a) == ("part", "part_1", "part_2", "part_3", "part_4", "part_5")
     assert _inside_bin(a) == []
     z = np.array([T[2, 3] for T in truth.all_object_poses(a).values()])
