@@ -145,6 +145,7 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
     reasons: Counter[str] = Counter()
     pick_t, perc_t, stopped = [], [], Counter()
     views: list[int] = []
+    hung = high = 0
     for r in recs:
         if "error" in r:
             reasons[f"raised: {r['error'][:60]}"] += 1
@@ -153,8 +154,11 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
         picked += r["picked"]
         present += r["present"]
         stopped[r["stopped"]] += 1
+        # in the box by IN_BOX_ABOVE_RIM_M, but above the 30 mm box's mark (80 mm over the table)
+        high += sum(z > 0.08 for z in r.get("in_box_heights_m", []))
         for p in r["picks"]:
             views.append(int(p.get("views", 1)))
+            hung += p.get("hung_on", 0) > 0
             if p["success"]:
                 pick_t.append(p["time_s"])
                 perc_t.append(p["perception_s"])
@@ -173,6 +177,9 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
         more = sum(v > 1 for v in views)
         rows.append(f"| views per pick (mean) | {np.mean(views):.2f} | "
                     f"{more} of {len(views)} picks took 2+ |")  # fmt: skip
+    rows.append(f"| parts in the box above 80 mm over the table | {high} | "
+                "counted by the 60 mm box's criterion only |")  # fmt: skip
+    rows.append(f"| picks whose part hung on the open hand | {hung} | set down in the box |")
     for why, n in reasons.most_common():
         rows.append(f"| failed pick: {why} | {n} | |")
     for why, n in stopped.most_common():

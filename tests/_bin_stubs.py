@@ -35,7 +35,7 @@ class StubPicker:
         self.in_box = False
         self.sensed = SimpleNamespace(provenance={})
         self.perception_s = self.last_tilt_deg = 0.0
-        self.last_passengers = 0
+        self.last_passengers = self.last_hung_on = 0
         self.views, self.faults_seen, self.obj = 1, {}, None
 
     def sense(self) -> list[Any]:

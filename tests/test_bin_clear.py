@@ -40,6 +40,10 @@ def test_a_three_part_bin_is_cleared():
     assert rec["picked"] == 3 and rec["cleared_fraction"] == 1.0, rec
     assert rec["stopped"] == "nothing found"  # the robot saw the bin empty
     assert all(p["views"] >= 1 and p["time_s"] >= p["perception_s"] for p in rec["picks"])
+    # the three parts rest in the box: their origins between the floor and the 60 mm rim
+    # (a part is 30 mm thick, its origin on its bottom face: 0-60 mm when three lie in it)
+    heights = rec["in_box_heights_m"]
+    assert len(heights) == 3 and all(-1e-3 < z < 0.06 for z in heights), heights
 
 
 def test_an_instance_with_another_resting_on_it_is_covered():

@@ -373,6 +373,8 @@ class Pick:
         unsure: the instance was one whose pose its points do not pin down
             (``Instances.unsure``), picked because no other was left
             (:meth:`BinPicker.unsure_left`).
+        hung_on: times the hand, opened over the box, still felt the part on a pad and was
+            lowered to set it down (:func:`_set_down_hung`; 0: it fell free).
     """
 
     instance: int
@@ -387,6 +389,7 @@ class Pick:
     tilt_deg: float = 0.0
     passenger_points: int = 0
     unsure: bool = False
+    hung_on: int = 0
 
     def to_json(self) -> dict[str, Any]:
         """The CLI's record of the pick."""
@@ -403,6 +406,7 @@ class Pick:
             "tilt_deg": round(self.tilt_deg, 1),
             "passenger_points": self.passenger_points,
             "unsure": self.unsure,
+            "hung_on": self.hung_on,
         }
 
 
@@ -553,6 +557,7 @@ class BinPicker:
         self.placed: list[np.ndarray] = []  # footprints of the parts let go in the box
         self.failed_grasps: list[Any] = []  # grasps the arm could not reach (not tried again)
         self.last_passengers = 0  # points of parts lifted with the last pick's part
+        self.last_hung_on = 0  # times the last pick's part hung on the opened hand
         self.retry_failed = False  # ... unless the bin has stalled (:meth:`_untried`)
 
     @property
@@ -861,8 +866,8 @@ class BinPicker:
         )
         # a tilted hand keeps its orientation until it has let go, then turns back to the
         # top-down home on the way there
-        tilted = float(ctl.pinch_rotation()[2, 2]) > -0.999
-        keep = ctl.pinch_rotation() if tilted else None
+        keep = _kept(ctl)
+        tilted = keep is not None
         self.last_passengers = 0
         if ok and pinch_to_world is not None and instance is not None:
             T = self.sensed.instances.instances[instance].matrix
@@ -879,6 +884,7 @@ class BinPicker:
             over = np.array([*self.box.center_xy, self.table_z + RELEASE_HEIGHT_M])
             ctl.move_to(over, ctl.pinch_yaw(), spacing_m=0.03, rotation=keep)
         ctl.open(50)  # the part falls free before the hand moves (15 periods dragged it out)
+        self.last_hung_on = _set_down_hung(ctl, self.table_z) if ok else 0
         up = ctl.pinch_pos()
         up[2] = max(up[2], self.table_z + CLEARANCE_ABOVE_M)
         ctl.move_to(up, ctl.pinch_yaw(), spacing_m=0.02, rotation=keep)
@@ -1076,6 +1082,7 @@ def clear_bin(
                 robot.last_tilt_deg,
                 robot.last_passengers,
                 unsure,
+                robot.last_hung_on,
             )  # fmt: skip
         )
         if stopped.startswith("simulation failed"):
@@ -1736,6 +1743,46 @@ def _carry_to_box(
     return "" if _held(ctl) else "dropped while carried"
 
 
+#: After the hand opened over the box, a pad reading more than this (N, summed pad force)
+#: says the part still hangs on a finger. Tuning bin 21's third pick: the part, grasped by
+#: its 22 mm step, hung on finger 1's pad with the hand open (93 N on that pad, under 0.01 N
+#: on the others), was lifted with the hand and fell on the table on the way home.
+HUNG_TOUCH_N = 0.5
+#: ... then the hand goes down this far (the part comes to rest on the box's floor or the
+#: parts in it, and the pad comes free) and up again; at most HUNG_TRIES times. The same
+#: pick replayed: lowered 30 mm, the pad read 0.01 N and the part stayed in the box as the
+#: hand rose; moved 40 mm sideways or turned 60 deg instead, the part stayed on the pad.
+HUNG_LOWER_M = 0.03
+HUNG_TRIES = 2
+
+
+def _set_down_hung(ctl: Any, table_z: float) -> int:
+    """The hand has opened over the box: while a pad still feels the part (more than
+    :data:`HUNG_TOUCH_N`), lower the hand :data:`HUNG_LOWER_M` (not below the fingertips
+    on the box's floor) and raise it back; returns how many times (0: nothing hung on it;
+    a failed pad reads nan and feels nothing)."""
+    tries = 0
+    while tries < HUNG_TRIES:
+        touch = np.nan_to_num(np.asarray(ctl.touch(), dtype=float), nan=0.0)
+        if float(touch.max()) <= HUNG_TOUCH_N:
+            break
+        tries += 1
+        logger.debug("the part hangs on the open hand (pads %s N); setting it down", touch)
+        at = ctl.pinch_pos()
+        down = at.copy()
+        down[2] = max(at[2] - HUNG_LOWER_M, table_z + TIPS_BELOW_PINCH_M)
+        ctl.move_to(down, ctl.pinch_yaw(), spacing_m=0.005, rotation=_kept(ctl))
+        ctl.move_to(at, ctl.pinch_yaw(), spacing_m=0.01, rotation=_kept(ctl))
+    return tries
+
+
+def _kept(ctl: Any) -> np.ndarray | None:
+    """The hand's rotation when it is tilted (to keep while it moves), None when it points
+    straight down (moves then hold its yaw)."""
+    R = ctl.pinch_rotation()
+    return R if float(R[2, 2]) > -0.999 else None
+
+
 # -- a push away from the wall (the closed hand as a paddle) ---------------------------------
 #: A part whose estimated footprint (the model's vertices posed at its estimate) comes this
 #: close to a wall's inner face is pushed when no grasp is left: the open fingers need about
@@ -1919,7 +1966,9 @@ def run_clear_bin(
     models: Sequence[str | Path] = (),
 ) -> dict[str, Any]:
     """Build the bin from ``seed`` and clear it (:func:`clear_bin`): the record of
-    ``mks-sim grasp --task clear_bin`` (plus ``seed``, ``object``, ``failed_devices``).
+    ``mks-sim grasp --task clear_bin`` (plus ``seed``, ``object``, ``failed_devices``, and
+    ``in_box_heights_m``: how high above the table the origin of each part counted in the
+    box rests, ground truth, evaluation only).
 
     Raises:
         SpecError: the scene has no ``[output_box]``.
@@ -1935,4 +1984,14 @@ def run_clear_bin(
             world, devices, object_name=name, rng=np.random.default_rng(seed), budget=budget,
             perturb=perturb, active=active, models=models,
         )  # fmt: skip
-    return {"seed": seed, "object": name, "failed_devices": list(fail), **rec}
+    from mks_sim.sim import truth
+
+    heights = [
+        round(float(truth.object_to_world(world, b)[2, 3] - world.scene.support_z), 4)
+        for b in instance_bodies(world)
+        if in_output_box(world, b)
+    ]  # evaluation: how high the parts counted in the box rest
+    return {
+        "seed": seed, "object": name, "failed_devices": list(fail), **rec,
+        "in_box_heights_m": sorted(heights),
+    }  # fmt: skip
