@@ -1762,6 +1762,7 @@ def _set_down_hung(ctl: Any, table_z: float) -> int:
     on the box's floor) and raise it back; returns how many times (0: nothing hung on it;
     a failed pad reads nan and feels nothing)."""
     tries = 0
+    keep = _kept(ctl)  # straight up and down: the hand's orientation does not change
     while tries < HUNG_TRIES:
         touch = np.nan_to_num(np.asarray(ctl.touch(), dtype=float), nan=0.0)
         if float(touch.max()) <= HUNG_TOUCH_N:
@@ -1771,8 +1772,8 @@ def _set_down_hung(ctl: Any, table_z: float) -> int:
         at = ctl.pinch_pos()
         down = at.copy()
         down[2] = max(at[2] - HUNG_LOWER_M, table_z + TIPS_BELOW_PINCH_M)
-        ctl.move_to(down, ctl.pinch_yaw(), spacing_m=0.005, rotation=_kept(ctl))
-        ctl.move_to(at, ctl.pinch_yaw(), spacing_m=0.01, rotation=_kept(ctl))
+        ctl.move_to(down, ctl.pinch_yaw(), spacing_m=0.005, rotation=keep)
+        ctl.move_to(at, ctl.pinch_yaw(), spacing_m=0.01, rotation=keep)
     return tries
 
 
