@@ -903,3 +903,49 @@ def test_a_part_only_unsure_is_tried_once_not_left_with_nothing_found(monkeypatc
     else:  # each place once (the failed one is avoided), then "nothing found", budget left
         assert robots[-1].tried == [0.0, 0.1], rec
         assert rec["stopped"] == "nothing found" and len(rec["picks"]) == 2
+
+
+def test_the_loop_decides_from_the_hand_not_from_the_ground_truth(monkeypatch):
+    """A pick the hand believes held is not marked failed because the simulator says the
+    part is not in the box: the ground truth is for the report only. The parts tried, in
+    order, are the same whether ``in_output_box`` answers yes or no (before, a believed
+    success that the truth denied sent the next pick to the other part)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    from _bin_stubs import StubPicker, patch_loop
+
+    from mks_sim.tasks import bin as binmod
+
+    robots: list = []
+
+    def at(x: float, score: float) -> SimpleNamespace:
+        T = np.eye(4)
+        T[0, 3] = x
+        return SimpleNamespace(matrix=T, score=score)
+
+    class Robot(StubPicker):
+        def __init__(self, world, devices, **kw):
+            super().__init__(world, devices)
+            robots.append(self)
+            self.tried: list[float] = []
+
+        def sense(self):
+            return [at(0.0, 0.6), at(0.1, 0.4)] if len(self.tried) < 3 else []
+
+        def grasps(self, i, obstacles="all"):
+            return ["grasp"]
+
+        def pick(self, cands, index, perturb, instance=None):
+            self.tried.append(float(self.sense()[instance].matrix[0, 3]))
+            return True, ""  # the pads held it, as far as the hand can tell
+
+    patch_loop(monkeypatch, binmod, Robot, robots)
+    monkeypatch.setattr(binmod, "_push_candidate", lambda *a: None)  # the stub has no walls
+    tried = {}
+    for truth in (True, False):
+        monkeypatch.setattr(binmod, "in_output_box", lambda world, body, t=truth: t)
+        rec = binmod.clear_bin(None, {})
+        assert all(p["success"] is truth for p in rec["picks"]), rec
+        tried[truth] = robots[-1].tried
+    assert tried[True] == tried[False] == [0.0, 0.0, 0.0], tried

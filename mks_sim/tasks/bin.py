@@ -1062,11 +1062,11 @@ def clear_bin(
         except PhysicsError as exc:  # the state is invalid: no further pick can run
             ok, failure = False, "simulation failed"
             stopped = f"simulation failed: {exc}"
+        if not ok:  # the hand's own belief: the ground truth below is for the report only
+            failed_at.append(T[:3, 3].copy())
         success = body is not None and in_output_box(world, body)
         if ok and not success:
             failure = "not in the box"
-        if not success:
-            failed_at.append(T[:3, 3].copy())
         dt = time.perf_counter() - t0
         picks.append(
             Pick(
