@@ -265,3 +265,83 @@ _BIN7_QPOS = (
     0.0929170902,
     -0.212421736,
 )
+
+
+def _turns_when_let_go(mesh, Rm: np.ndarray) -> float:
+    """Degrees the body (``mesh``, uniform density) turns in 2 s of MuJoCo physics, set down
+    at rotation ``Rm`` with its lowest point on a plane: the ground truth of standing."""
+    import mujoco
+    from scipy.spatial.transform import Rotation
+
+    z0 = -(mesh.vertices @ Rm.T)[:, 2].min() + 1e-4
+    x, y, z, w = Rotation.from_matrix(Rm).as_quat()
+    vert = " ".join(map(str, np.asarray(mesh.vertices).ravel()))
+    face = " ".join(map(str, np.asarray(mesh.faces).ravel()))
+    xml = f"""<mujoco><option timestep="0.002"/>
+      <asset><mesh name="m" vertex="{vert}" face="{face}"/></asset>
+      <worldbody><geom type="plane" size="1 1 0.1"/>
+        <body pos="0 0 {z0}" quat="{w} {x} {y} {z}"><freejoint/>
+          <geom type="mesh" mesh="m" density="1000"/></body></worldbody></mujoco>"""
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    q0 = d.qpos[3:7].copy()
+    mujoco.mj_step(m, d, 1000)
+    return float(2.0 * np.degrees(np.arccos(min(1.0, abs(float(q0 @ d.qpos[3:7]))))))
+
+
+@pytest.mark.parametrize("name", ["part", "box"])
+def test_a_part_leans_exactly_when_physics_tips_it_over(name):
+    """``leans`` against MuJoCo: each pose set down on a plane and let go for 2 s. A pose
+    that leans turns by more than 5 deg (it falls onto a face); one that stands turns by at
+    most 3 (settling from a tilt within LEAN_TOUCH_M onto its face). The poses: flat on
+    faces, tilted 1-33 deg, on ends and sides, upside down (the part's rests tilted 7 deg)."""
+    from scipy.spatial.transform import Rotation
+
+    from mks_sim.geometry.meshes import box_mesh, industrial_part_mesh
+
+    mesh = industrial_part_mesh() if name == "part" else box_mesh((0.05, 0.04, 0.06))
+    poses = [(0, 0, 0), (1, 0, 0), (3, 0, 0), (8, 0, 0), (33, 0, 0), (0, 33, 0), (20, 20, 0),
+             (90, 0, 0), (-90, 0, 0), (0, 90, 0), (0, -90, 0), (180, 0, 0), (180, 7, 0),
+             (180, -7, 0)]  # fmt: skip
+    falls = stands = 0
+    for eul in poses:
+        Rm = Rotation.from_euler("xyz", eul, degrees=True).as_matrix()
+        turned = _turns_when_let_go(mesh, Rm)
+        assert turned <= 3.1 or turned >= 5.0, (eul, turned)  # no pose on the fence
+        got = binmod.leans(mesh.vertices @ Rm.T, Rm @ mesh.centroid)
+        assert got == (turned >= 5.0), (eul, turned)
+        falls += got
+        stands += not got
+    assert falls >= 5 and stands >= 5
+
+
+def test_a_part_with_no_pair_is_pushed_only_when_it_leans(monkeypatch):
+    """Two parts 5 mm from the -x wall, neither with an antipodal pair in any draw: the one
+    whose estimate leans (a box tilted 33 deg onto its edge) gets a push away from the wall,
+    whichever comes first in the order; the one flat on its face does not (a push cannot
+    give it a pair)."""
+    from scipy.spatial.transform import Rotation
+
+    from mks_sim.geometry.meshes import box_mesh
+
+    mesh = box_mesh((0.05, 0.04, 0.06))
+
+    def at_wall(tilt_deg: float) -> SimpleNamespace:
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("y", tilt_deg, degrees=True).as_matrix()
+        V = mesh.vertices @ T[:3, :3].T
+        T[:3, 3] = [WALLS_LO[0] + 0.005 - V[:, 0].min(), 0.0, TABLE_Z - V[:, 2].min()]
+        return SimpleNamespace(matrix=T, score=1.0)
+
+    robot = SimpleNamespace(
+        world=None, obj=SimpleNamespace(mesh=mesh), table_z=TABLE_Z,
+        grasps=lambda i, obstacles="all": [], redraw=lambda: None,
+    )  # fmt: skip
+    monkeypatch.setattr(binmod, "bin_walls_xy", lambda world: (WALLS_LO, WALLS_HI))
+    found = [at_wall(0.0), at_wall(33.0)]
+    for order in ([0, 1], [1, 0]):
+        push = binmod._push_candidate(robot, found, order, [])
+        assert push is not None and push[0] == 1, order
+        np.testing.assert_allclose(push[1].direction, [1.0, 0.0])
+    assert binmod._push_candidate(robot, found[:1], [0], []) is None

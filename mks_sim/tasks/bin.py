@@ -1906,8 +1906,9 @@ def _pushed_from_to(T: np.ndarray, plan: PushPlan) -> np.ndarray:
 def _push_candidate(
     robot: BinPicker, found: Sequence[Any], order: Sequence[int], pushed: Sequence[np.ndarray]
 ) -> tuple[int, PushPlan] | None:
-    """The first instance in ``order`` that has an antipodal pair (with no obstacles), lies
-    within :data:`PUSH_NEAR_WALL_M` of a wall and was pushed fewer than
+    """The first instance in ``order`` that has an antipodal pair (with no obstacles) or
+    leans (:func:`leans`: pushed, it lies down, and may have one then), lies within
+    :data:`PUSH_NEAR_WALL_M` of a wall and was pushed fewer than
     :data:`PUSHES_PER_INSTANCE` times (an earlier push started or was to end within
     :data:`PUSH_SAME_M` of its estimated origin), and its push; or None. Only the estimate,
     the model and the walls (scene data) are used."""
@@ -1916,12 +1917,48 @@ def _push_candidate(
     for i in order:
         T = found[i].matrix
         near = sum(bool(np.any(np.linalg.norm(p - T[:3, 3], axis=1) < PUSH_SAME_M)) for p in pushed)
-        if near >= PUSHES_PER_INSTANCE or not _has_pair(robot, i):
+        if near >= PUSHES_PER_INSTANCE:
             continue
-        plan = plan_push(V @ T[:3, :3].T + T[:3, 3], walls_lo, walls_hi, robot.table_z)
+        posed = V @ T[:3, :3].T + T[:3, 3]
+        if not _has_pair(robot, i):
+            com = T[:3, :3] @ np.asarray(robot.obj.mesh.centroid, dtype=float) + T[:3, 3]
+            if not leans(posed, com):
+                continue
+            logger.info("push: instance %d has no pair but leans", i)
+        plan = plan_push(posed, walls_lo, walls_hi, robot.table_z)
         if plan is not None:
             return i, plan
     return None
+
+
+#: A posed part stands by itself when its centre of mass lies over the support polygon of
+#: its vertices within LEAN_TOUCH_M of the lowest (an estimate of a part flat on a face is
+#: tilted 1-2 deg: 2-3.5 mm over 100 mm), at least LEAN_INSIDE_M inside it.
+LEAN_TOUCH_M = 0.004
+LEAN_INSIDE_M = 0.002
+
+
+def leans(vertices_world: np.ndarray, com_world: np.ndarray) -> bool:
+    """The part posed as ``vertices_world`` (N, 3) with its centre of mass at ``com_world``
+    (3,) cannot rest so by itself (world, metres): it leans on something, a wall or another
+    part. True when the centre of mass is not over the convex hull (xy) of the vertices
+    within :data:`LEAN_TOUCH_M` of the lowest by :data:`LEAN_INSIDE_M`, or those vertices
+    span no area (an edge or a corner on the table). Tuning bin 42: a part leaning 33 deg
+    on the bin's +y wall had no antipodal pair, so no push was planned, and the bin stopped
+    with it left."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    P = np.asarray(vertices_world, dtype=float).reshape(-1, 3)
+    low = P[P[:, 2] <= P[:, 2].min() + LEAN_TOUCH_M, :2]
+    if len(low) < 3:
+        return True
+    try:
+        hull = ConvexHull(low)
+    except QhullError:  # on a line
+        return True
+    c = np.asarray(com_world, dtype=float)[:2]
+    # the facets' outward unit normals and offsets: inside where every n . x + b <= 0
+    return bool(np.any(hull.equations[:, :2] @ c + hull.equations[:, 2] > -LEAN_INSIDE_M))
 
 
 def _has_pair(robot: Any, i: int) -> bool:
