@@ -146,6 +146,7 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
     pick_t, perc_t, stopped = [], [], Counter()
     views: list[int] = []
     hung = high = 0
+    left: Counter[str] = Counter()
     for r in recs:
         if "error" in r:
             reasons[f"raised: {r['error'][:60]}"] += 1
@@ -156,6 +157,7 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
         stopped[r["stopped"]] += 1
         # in the box by IN_BOX_ABOVE_RIM_M, but above the 30 mm box's mark (80 mm over the table)
         high += sum(z > 0.08 for z in r.get("in_box_heights_m", []))
+        left.update(r.get("left", {}))
         for p in r["picks"]:
             views.append(int(p.get("views", 1)))
             hung += p.get("hung_on", 0) > 0
@@ -180,6 +182,9 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
     rows.append(f"| parts in the box above 80 mm over the table | {high} | "
                 "counted by the 60 mm box's criterion only |")  # fmt: skip
     rows.append(f"| picks whose part hung on the open hand | {hung} | set down in the box |")
+    if left:
+        rows.append(f"| parts not picked: in the bin / outside bin and box / in the box above "
+                    f"the rim | {left['bin']} / {left['outside']} / {left['box']} | |")  # fmt: skip
     for why, n in reasons.most_common():
         rows.append(f"| failed pick: {why} | {n} | |")
     for why, n in stopped.most_common():

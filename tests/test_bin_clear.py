@@ -44,6 +44,7 @@ def test_a_three_part_bin_is_cleared():
     # (a part is 30 mm thick, its origin on its bottom face: 0-60 mm when three lie in it)
     heights = rec["in_box_heights_m"]
     assert len(heights) == 3 and all(-1e-3 < z < 0.06 for z in heights), heights
+    assert rec["left"] == {"bin": 0, "box": 0, "outside": 0}, rec
 
 
 def test_an_instance_with_another_resting_on_it_is_covered():
@@ -949,3 +950,39 @@ def test_the_loop_decides_from_the_hand_not_from_the_ground_truth(monkeypatch):
         assert all(p["success"] is truth for p in rec["picks"]), rec
         tried[truth] = robots[-1].tried
     assert tried[True] == tried[False] == [0.0, 0.0, 0.0], tried
+
+
+def test_parts_left_says_where_the_parts_not_picked_are():
+    """``parts_left`` on the bin scene (not dropped: each part's free joint set by hand):
+    parts at the bin's middle and near its corner are "bin", one on the table between bin
+    and box is "outside", one over the box 150 mm above its floor is "box" (inside its walls,
+    above the height that counts), one on the box's floor is in the box and not left."""
+    import mujoco
+
+    from mks_sim.sim.scenes import scene_file, scene_from_doc
+    from mks_sim.sim.world import World
+    from mks_sim.tasks import bin as binmod
+
+    path = scene_file(binmod.BIN_SCENE)
+    world = World(scene_from_doc(binmod._bin_doc(path, None, None), path))
+    lo, hi = binmod.bin_walls_xy(world)
+    box = binmod.output_box(world)
+    z = world.scene.support_z
+    bx, by = box.center_xy
+    places = {
+        "bin": [(*(0.5 * (lo + hi)), z + 0.01), (*(lo + 0.01), z + 0.01)],
+        "outside": [(0.5 * (lo[0] + bx + box.half_xy[0]), hi[1] + 0.05, z + 0.01)],
+        "box": [(bx, by, z + 0.15)],
+        None: [(bx, by, z + 0.01)],
+    }
+    bodies = list(binmod.instance_bodies(world))
+    where = [k for k, ps in places.items() for _ in ps]
+    xyz = [p for ps in places.values() for p in ps]
+    assert len(bodies) >= len(xyz)
+    for b, p in zip(bodies, [*xyz, *[(3.0 + i, 3.0, z) for i in range(len(bodies))]]):
+        adr = world.model.jnt_qposadr[world.model.body(b).jntadr[0]]
+        world.data.qpos[adr : adr + 7] = [*p, 1.0, 0.0, 0.0, 0.0]
+    mujoco.mj_forward(world.model, world.data)
+    far = len(bodies) - len(xyz)  # the rest parked 3 m away: outside
+    assert binmod.in_output_box(world, bodies[where.index(None)])
+    assert binmod.parts_left(world) == {"bin": 2, "box": 1, "outside": 1 + far}

@@ -445,6 +445,30 @@ def in_output_box(world: World, body: str) -> bool:
     )
 
 
+def parts_left(world: World) -> dict[str, int]:
+    """Where the parts not in the output box (:func:`in_output_box`) are, by their origins
+    (evaluation only): ``"bin"`` inside the bin's walls (:func:`bin_walls_xy`), ``"box"``
+    inside the box's walls but above the height that counts, ``"outside"`` anywhere else
+    (on the table, on a rim, on the floor). Every key is present."""
+    from mks_sim.sim import truth
+
+    lo, hi = bin_walls_xy(world)
+    box = output_box(world)
+    c, h = np.asarray(box.center_xy), np.asarray(box.half_xy)
+    out = {"bin": 0, "box": 0, "outside": 0}
+    for b in instance_bodies(world):
+        if in_output_box(world, b):
+            continue
+        xy = truth.object_to_world(world, b)[:2, 3]
+        if np.all(xy > lo) and np.all(xy < hi):
+            out["bin"] += 1
+        elif np.all(np.abs(xy - c) < h):
+            out["box"] += 1
+        else:
+            out["outside"] += 1
+    return out
+
+
 def _nearest_body(world: World, bodies: Sequence[str], T: np.ndarray) -> str | None:
     """The true instance nearest the estimate ``T`` (evaluation only)."""
     from mks_sim.sim import truth
@@ -2006,7 +2030,8 @@ def run_clear_bin(
     """Build the bin from ``seed`` and clear it (:func:`clear_bin`): the record of
     ``mks-sim grasp --task clear_bin`` (plus ``seed``, ``object``, ``failed_devices``, and
     ``in_box_heights_m``: how high above the table the origin of each part counted in the
-    box rests, ground truth, evaluation only).
+    box rests, and ``left``: where the others are, :func:`parts_left`; ground truth,
+    evaluation only).
 
     Raises:
         SpecError: the scene has no ``[output_box]``.
@@ -2031,5 +2056,5 @@ def run_clear_bin(
     ]  # evaluation: how high the parts counted in the box rest
     return {
         "seed": seed, "object": name, "failed_devices": list(fail), **rec,
-        "in_box_heights_m": sorted(heights),
+        "in_box_heights_m": sorted(heights), "left": parts_left(world),
     }  # fmt: skip
