@@ -37,6 +37,7 @@ class StubPicker:
         self.perception_s = self.last_tilt_deg = 0.0
         self.last_passengers = self.last_hung_on = 0
         self.views, self.faults_seen, self.obj = 1, {}, None
+        self.tried: list[float] = []  # what a subclass records of each pick it tries
 
     def sense(self) -> list[Any]:
         """The one part at the origin, score 1, until it is in the box."""

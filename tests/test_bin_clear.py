@@ -875,7 +875,6 @@ def test_a_part_only_unsure_is_tried_once_not_left_with_nothing_found(monkeypatc
         def __init__(self, world, devices, **kw):
             super().__init__(world, devices)
             robots.append(self)
-            self.tried: list[float] = []
 
         def sense(self):
             # a far one scored lower, and the one a pick is tried on first
@@ -929,7 +928,6 @@ def test_the_loop_decides_from_the_hand_not_from_the_ground_truth(monkeypatch):
         def __init__(self, world, devices, **kw):
             super().__init__(world, devices)
             robots.append(self)
-            self.tried: list[float] = []
 
         def sense(self):
             return [at(0.0, 0.6), at(0.1, 0.4)] if len(self.tried) < 3 else []
