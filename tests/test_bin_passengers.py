@@ -164,12 +164,15 @@ class _TurningHand:
         return np.full(3, 0.9)  # closed on a part
 
 
-@pytest.mark.parametrize("before", [0, 2])
+@pytest.mark.parametrize("before", [0, 2, "full"])
 def test_the_bundle_is_let_go_inside_the_box(before):
     """A held 100 x 60 x 30 mm box with a passenger hanging 150 mm beside it and 60 mm lower
-    is let go with the whole bundle inside the box's walls and above its rim, and carried
-    over both walls (brute force over the corners). Placed for the held part alone, the
-    passenger hung over the wall (tuning bins 22, 35, 36)."""
+    is let go with the whole bundle inside the box's walls, and carried over both walls
+    (brute force over the corners). Placed for the held part alone, the passenger hung over
+    the wall (tuning bins 22, 35, 36). Let go where no part was let go before (the robot's
+    record, ``before`` parts placed first), the bundle's lowest point is
+    BUNDLE_FLOOR_GAP_M above the box's floor; with the box's whole floor taken ("full"),
+    RELEASE_GAP_M above its rim."""
     table_z = 0.5
     corners = np.array(list(itertools.product(*[(-s / 2, s / 2) for s in SIZE])))
     held = corners + [0.0, 0.0, -0.03]  # pinch frame
@@ -184,20 +187,37 @@ def test_the_bundle_is_let_go_inside_the_box(before):
 
     def carried(passengers):
         placed: list[np.ndarray] = []
-        for _ in range(before):
+        if before == "full":
+            placed.append(np.concatenate([c - box.half_xy, c + box.half_xy]))
+        for _ in range(0 if before == "full" else before):
             m = binmod.place_middle(np.array([0.05, 0.03]), placed, box)
             placed.append(np.concatenate([m - [0.05, 0.03], m + [0.05, 0.03]]))
+        taken = np.array(placed).reshape(-1, 4)
         hand = _TurningHand([0.05, -0.02, table_z + 0.16], 0.4)
         assert (
             binmod._carry_to_box(hand, held, table_z, None, box, placed=placed, **passengers) == ""
+        )
+        # brute force: did the bundle's footprint overlap a footprint placed before?
+        mine = placed[-1]
+        hand.free = not any(
+            min(mine[2], r[2]) > max(mine[0], r[0]) and min(mine[3], r[3]) > max(mine[1], r[1])
+            for r in taken
         )
         return hand
 
     hand = carried({"passengers": rider})
     B = np.concatenate([held, rider]) @ hand.R.T + hand.pos
     assert np.all(np.abs(B[:, :2] - c) <= inside)
-    assert B[:, 2].min() >= rim + binmod.RELEASE_GAP_M - 1e-9
-    for pos, R in hand.path[:-1]:  # over the walls, before the last move down
+    assert hand.free == (before != "full") or before == 2
+    # the lowest of the bundle and the fingertips
+    lowest = min(B[:, 2].min(), hand.pos[2] - binmod.TIPS_BELOW_PINCH_M)
+    if hand.free:
+        assert lowest == pytest.approx(table_z + binmod.BUNDLE_FLOOR_GAP_M)
+    else:
+        assert lowest == pytest.approx(rim + binmod.RELEASE_GAP_M)
+    for pos, R in hand.path:  # over the walls, until it is over its place
+        if np.allclose(pos[:2], hand.pos[:2]):
+            continue
         low = (np.concatenate([held, rider]) @ R.T + pos)[:, 2].min()
         assert (
             low
