@@ -978,10 +978,10 @@ def clear_bin(
     Stops when nothing is found, no instance found has a collision-free grasp, or
     ``budget`` picks were tried. A failed pick is recorded with its reason and the loop goes
     on (the instance it failed on is tried last next time). When no instance has a grasp
-    but one with an antipodal pair lies against a wall, it is pushed away from the wall
-    (:func:`plan_push`, at most :data:`PUSHES_PER_INSTANCE` times per part and
-    :data:`PUSHES_PER_BIN` per bin), recorded as a pick that failed ``pushed``, and the bin
-    is sensed again.
+    but one with an antipodal pair, or one that leans (:func:`leans`), lies against a wall,
+    it is pushed away from the wall (:func:`plan_push`, at most
+    :data:`PUSHES_PER_INSTANCE` times per part and :data:`PUSHES_PER_BIN` per bin),
+    recorded as a pick that failed ``pushed``, and the bin is sensed again.
 
     Args:
         world: the bin world (:func:`bin_world`).
@@ -1737,8 +1737,8 @@ def _carry_to_box(
     The part's middle goes over its place in the box with its lowest point (or the
     fingertips') ``CARRY_MARGIN_M`` above the walls on the way, then down to
     ``RELEASE_GAP_M`` above the box's rim; a bundle in a place no part was let go in before
-    on down to ``BUNDLE_FLOOR_GAP_M`` above the box's floor. A part carried top-down (``rotation`` None) is
-    turned on the way so that its footprint's bounding rectangle is smallest, long side
+    on down to ``BUNDLE_FLOOR_GAP_M`` above the box's floor. A part carried top-down
+    (``rotation`` None) is turned on the way so that its footprint's bounding rectangle is smallest, long side
     along the box's x; one that will fall over when let go (:func:`fall_room`) short side
     along x, and its place leaves it room to fall.
     """
@@ -1746,7 +1746,8 @@ def _carry_to_box(
     R = ctl.pinch_rotation()
     W = part_pinch @ R.T + pos  # (N, 3) the part as carried
     A = W  # ... with its passengers: the bundle
-    if passengers is not None and len(passengers):
+    bundle = passengers is not None and len(passengers) > 0
+    if bundle:
         A = np.vstack([W, np.asarray(passengers, dtype=float) @ R.T + pos])
     below = max(pos[2] - float(A[:, 2].min()), TIPS_BELOW_PINCH_M)
     rim = box.wall_height_m
@@ -1776,7 +1777,7 @@ def _carry_to_box(
     yaw += turn
     ctl.move_to(over, yaw, spacing_m=0.02, rotation=rotation)
     ctl.move_to(np.array([over[0], over[1], release_z]), yaw, spacing_m=0.01, rotation=rotation)
-    if free and A is not W:
+    if bundle and free:
         low = np.array([over[0], over[1], table_z + BUNDLE_FLOOR_GAP_M + below])
         ctl.move_to(low, yaw, spacing_m=0.005, rotation=rotation)
     return "" if _held(ctl) else "dropped while carried"
