@@ -438,19 +438,25 @@ def output_box(world: World) -> OutputBox:
     return box
 
 
+def _inside_box_walls(box: OutputBox, p: np.ndarray) -> bool:
+    """The point ``p`` (x, y, ...) lies inside the box's walls (their centres), seen from
+    above."""
+    return bool(np.all(np.abs(np.asarray(p)[:2] - np.asarray(box.center_xy)) < box.half_xy))
+
+
+def _counts_in_box(world: World, box: OutputBox, p: np.ndarray) -> bool:
+    """A part's origin at ``p`` (3,) counts as in the box: inside its walls, no higher than
+    :data:`IN_BOX_ABOVE_RIM_M` above its rim."""
+    top = world.scene.support_z + box.wall_height_m + IN_BOX_ABOVE_RIM_M
+    return _inside_box_walls(box, p) and bool(p[2] < top)
+
+
 def in_output_box(world: World, body: str) -> bool:
     """The body's origin is inside the output box's walls, no higher than
     :data:`IN_BOX_ABOVE_RIM_M` above its rim (evaluation only)."""
     from mks_sim.sim import truth
 
-    box = output_box(world)
-    p = truth.object_to_world(world, body)[:3, 3]
-    c, h = box.center_xy, box.half_xy
-    return bool(
-        abs(p[0] - c[0]) < h[0]
-        and abs(p[1] - c[1]) < h[1]
-        and p[2] < world.scene.support_z + box.wall_height_m + IN_BOX_ABOVE_RIM_M
-    )
+    return _counts_in_box(world, output_box(world), truth.object_to_world(world, body)[:3, 3])
 
 
 def parts_left(world: World) -> dict[str, int]:
@@ -462,15 +468,14 @@ def parts_left(world: World) -> dict[str, int]:
 
     lo, hi = bin_walls_xy(world)
     box = output_box(world)
-    c, h = np.asarray(box.center_xy), np.asarray(box.half_xy)
     out = {"bin": 0, "box": 0, "outside": 0}
     for b in instance_bodies(world):
-        if in_output_box(world, b):
+        p = truth.object_to_world(world, b)[:3, 3]  # read once per part
+        if _counts_in_box(world, box, p):
             continue
-        xy = truth.object_to_world(world, b)[:2, 3]
-        if np.all(xy > lo) and np.all(xy < hi):
+        if np.all(p[:2] > lo) and np.all(p[:2] < hi):
             out["bin"] += 1
-        elif np.all(np.abs(xy - c) < h):
+        elif _inside_box_walls(box, p):
             out["box"] += 1
         else:
             out["outside"] += 1
@@ -1738,9 +1743,9 @@ def _carry_to_box(
     fingertips') ``CARRY_MARGIN_M`` above the walls on the way, then down to
     ``RELEASE_GAP_M`` above the box's rim; a bundle in a place no part was let go in before
     on down to ``BUNDLE_FLOOR_GAP_M`` above the box's floor. A part carried top-down
-    (``rotation`` None) is turned on the way so that its footprint's bounding rectangle is smallest, long side
-    along the box's x; one that will fall over when let go (:func:`fall_room`) short side
-    along x, and its place leaves it room to fall.
+    (``rotation`` None) is turned on the way so that its footprint's bounding rectangle is
+    smallest, long side along the box's x; one that will fall over when let go
+    (:func:`fall_room`) short side along x, and its place leaves it room to fall.
     """
     pos, yaw = ctl.pinch_pos(), ctl.pinch_yaw()
     R = ctl.pinch_rotation()
