@@ -72,6 +72,33 @@ def test_a_part_in_a_corner_is_pushed_diagonally_out_of_it():
     assert plan.wall_gap_m == pytest.approx(0.01)
 
 
+def test_the_closed_hand_comes_down_inside_the_walls_in_a_corner():
+    """A part 10 mm from two walls is pushed diagonally; the closed fingers (measured: 15 mm
+    either side of the pinch point along the closing axis, -44.6 .. +15.3 mm across it)
+    come down at least 4.9 mm inside both walls, still over the part, and further in than
+    PUSH_INSET_M (there the fingers would reach over the walls: tuning bin 11). Against one
+    wall the inset stays PUSH_INSET_M."""
+    part = _box((0.06, 0.06, TABLE_Z), (0.16, 0.12, TABLE_Z + 0.03))  # +x, +y corner
+    plan = plan_push(part, WALLS_LO, WALLS_HI, TABLE_Z)
+    assert plan is not None
+    c, s = np.cos(plan.yaw_rad), np.sin(plan.yaw_rad)
+    x_axis, y_axis = np.array([c, s]), np.array([s, -c])
+    tips = np.array(
+        [plan.start_world[:2] + a * x_axis + b * y_axis for a in (-0.015, 0.015)
+         for b in (-0.0446, 0.0153)]
+    )  # fmt: skip
+    assert np.all(tips >= WALLS_LO + 0.0049) and np.all(tips <= WALLS_HI - 0.0049), tips
+    middle = _tips_middle(plan)
+    assert np.all(middle >= [0.06, 0.06]) and np.all(middle <= [0.16, 0.12])
+    # along the push, further in than the part's edge + PUSH_INSET_M
+    edge = (part[:, :2] @ plan.direction).min()
+    assert middle @ plan.direction > edge + binmod.PUSH_INSET_M + 0.004
+    one_wall = _box((0.06, -0.05, TABLE_Z), (0.16, 0.01, TABLE_Z + 0.03))  # +x wall only
+    plan = plan_push(one_wall, WALLS_LO, WALLS_HI, TABLE_Z)
+    assert plan is not None
+    assert _tips_middle(plan)[0] == pytest.approx(0.16 - binmod.PUSH_INSET_M)
+
+
 def test_a_push_stops_short_of_the_opposite_wall():
     """A bin 120 mm across x and a 60 mm part against its -x wall: 60 mm of room ahead,
     PUSH_FAR_MARGIN_M of it kept, the push is shorter than PUSH_DISTANCE_M."""

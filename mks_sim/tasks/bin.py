@@ -808,7 +808,9 @@ class BinPicker:
                 fingers may push neighbouring parts aside); ``"tight"``: the same, the
                 fingertips allowed :data:`TIGHT_CLEARANCE_M` from them (a rigid wall, not a
                 part that may move); ``"touch"``: the same at :data:`TOUCH_CLEARANCE_M`
-                (the fingertips may graze a wall); ``"none"``.
+                (the fingertips may graze a wall); ``"none"``. In every round but
+                ``"none"``, top-down candidates whose open fingers would come down on a
+                wall (:func:`walls_block`) are left out.
         """
         from mks_sim.tasks.grasp import FINGER_CLEARANCE_M, synthesize_grasps
 
@@ -829,6 +831,10 @@ class BinPicker:
             preferred_yaw=self.ctl.pinch_yaw(), finger_clearance_m=clearance,
             min_width_m=BIN_MIN_WIDTH_M, max_face_lean_deg=BIN_MAX_FACE_LEAN_DEG,
         )  # fmt: skip
+        if obstacles != "none":  # the walls are rigid: no round lets the fingers onto them
+            lo, hi = bin_walls_xy(self.world)
+            over = TOUCH_WALL_OVERLAP_M if obstacles == "touch" else 0.0
+            cands = [c for c in cands if not walls_block(c, lo, hi, self.table_z, over)]
         self._grasp_memo = (self.sensed, i, obstacles, cands)
         return self._untried(cands, obstacles)
 
@@ -1199,6 +1205,9 @@ TIGHT_CLEARANCE_M = 0.012
 #: ... and this close in a last round, once per instance (a fingertip's half thickness and
 #: 2 mm: the fingertip may graze the wall; a part against a wall is otherwise left in the bin).
 TOUCH_CLEARANCE_M = 0.007
+#: ... where an open finger's footprint (:func:`walls_block`) may reach this far over a
+#: wall's inner face (its discs hold the fingers loosely, by up to 6 mm).
+TOUCH_WALL_OVERLAP_M = 0.003
 
 #: An instance with more than this many of other instances' sensed points resting on it is
 #: picked after the free ones.
@@ -1322,20 +1331,51 @@ def fingers_blocked(cand: Any, points: np.ndarray, margin_m: float) -> bool:
     metres: a point within the footprint's radius + margin across (xy) of a finger's centre
     and higher than :data:`FOOTPRINT_BELOW_PINCH_M` below the pinch point. Tilted
     candidates are not checked here (False)."""
-    from mks_sim.tasks.grasp import PRESHAPE_MARGIN_M
-
     if getattr(cand, "rotation_world", None) is not None or len(points) == 0:
         return False
     pinch = np.asarray(cand.pinch_world, dtype=float)
     P = points[points[:, 2] > pinch[2] - FOOTPRINT_BELOW_PINCH_M]
     if len(P) == 0:
         return False
+    world, radius = _footprint_world(cand)
+    d = np.linalg.norm(P[None, :, :2] - world[:, None, :], axis=2)  # (3, M)
+    return bool(np.any(d < radius + margin_m))
+
+
+def _footprint_world(cand: Any) -> tuple[np.ndarray, float]:
+    """((3, 2) world xy of a top-down candidate's open fingers' footprint centres, radius)
+    (:func:`finger_footprint`, pre-shaped to the candidate's width + grasp.PRESHAPE_MARGIN_M)."""
+    from mks_sim.tasks.grasp import PRESHAPE_MARGIN_M
+
+    pinch = np.asarray(cand.pinch_world, dtype=float)
     centres, radius = finger_footprint(cand.width_m + PRESHAPE_MARGIN_M)
     c, s = np.cos(cand.yaw_rad), np.sin(cand.yaw_rad)
     # the pinch frame's x is (cos yaw, sin yaw), its y (sin yaw, -cos yaw) (z down)
     world = pinch[:2] + centres[:, :1] * np.array([c, s]) + centres[:, 1:] * np.array([s, -c])
-    d = np.linalg.norm(P[None, :, :2] - world[:, None, :], axis=2)  # (3, M)
-    return bool(np.any(d < radius + margin_m))
+    return world, radius
+
+
+def walls_block(
+    cand: Any, walls_lo: np.ndarray, walls_hi: np.ndarray, table_z: float, overlap_m: float = 0.0
+) -> bool:
+    """A top-down descent of ``cand`` would bring an open finger onto one of the bin's walls:
+    its footprint (:func:`finger_footprint`) crosses a wall's inner face (``walls_lo``,
+    ``walls_hi``: (2,) xy, :func:`bin_walls_xy`, scene data) by more than ``overlap_m``
+    while the fingers reach below the walls' top (:data:`BIN_WALL_M` above ``table_z``).
+    Tilted candidates are not checked here (False).
+
+    The synthesis sees the walls only as sensed points and its fingertips as three points
+    with a clearance; the real fingers reach up to 24 mm from those points. Tuning bin 11:
+    eight descents onto an upside-down part 13-40 mm from two walls were stopped by the
+    walls' top, 25-35 mm above the grasp, until the budget was spent."""
+    if getattr(cand, "rotation_world", None) is not None:
+        return False
+    if float(cand.pinch_world[2]) - FOOTPRINT_BELOW_PINCH_M >= table_z + BIN_WALL_M:
+        return False
+    world, radius = _footprint_world(cand)
+    lo, hi = np.asarray(walls_lo, dtype=float), np.asarray(walls_hi, dtype=float)
+    r = radius - overlap_m
+    return bool(np.any(world - r < lo) or np.any(world + r > hi))
 
 
 def _split_clear(cands: Sequence[Any], parts: np.ndarray) -> tuple[list[Any], list[Any], list[Any]]:
@@ -1831,9 +1871,12 @@ def _kept(ctl: Any) -> np.ndarray | None:
 
 # -- a push away from the wall (the closed hand as a paddle) ---------------------------------
 #: A part whose estimated footprint (the model's vertices posed at its estimate) comes this
-#: close to a wall's inner face is pushed when no grasp is left: the open fingers need about
-#: 22 mm beside it (grasp.FINGER_CLEARANCE_M), the "touch" round 7 mm plus the finger's back.
-PUSH_NEAR_WALL_M = 0.025
+#: close to a wall's inner face is pushed when no grasp is left: an open finger's footprint
+#: (:func:`finger_footprint`) reaches 35-36 mm beyond the face its pad is to close on, for
+#: the part's 20 mm and 60 mm pinches alike, and :func:`walls_block` keeps it off the walls.
+#: At 25 mm, tuning bin 11's upside-down part, pushed once to 28-33 mm from two walls, had
+#: every candidate over a wall and no push left: the bin stopped.
+PUSH_NEAR_WALL_M = 0.04
 #: The closed hand comes down this far inside the part's edge nearest the wall: the closed
 #: fingers reach 15 mm on either side of the pinch point along the closing axis (measured:
 #: the hand closed in free air at 1.31-1.35 rad, the fingers' collision boxes), and 5 mm more
@@ -1903,7 +1946,9 @@ def plan_push(
         table_z: the bin's floor, metres.
 
     The direction is the sum of the near walls' inward normals (a corner: diagonal); the
-    closed hand comes down :data:`PUSH_INSET_M` inside the part's edge on the walls' side,
+    closed hand comes down :data:`PUSH_INSET_M` inside the part's edge on the walls' side
+    (further in, up to the part's middle, until its footprint is inside the walls:
+    :func:`_closed_hand_inside`),
     its fingertips :data:`PUSH_PRESS_M` below the part's estimated top there, and moves
     :data:`PUSH_DISTANCE_M` along the direction (less when the part's far side would come
     within :data:`PUSH_FAR_MARGIN_M` of the opposite wall).
@@ -1928,7 +1973,12 @@ def plan_push(
     distance = float(np.clip(min(ahead) - PUSH_FAR_MARGIN_M, 0.0, PUSH_DISTANCE_M))
     if distance <= 0.0:
         return None
-    middle = (s.min() + PUSH_INSET_M) * d + 0.5 * (t.min() + t.max()) * across  # (2,)
+    # the closed hand comes down inside the walls: further in than PUSH_INSET_M where its
+    # footprint would reach over a wall (a corner's diagonal push), at most to the middle
+    for inset in np.arange(PUSH_INSET_M, max(PUSH_INSET_M, 0.5 * np.ptp(s)) + 1e-9, 0.002):
+        middle = (s.min() + inset) * d + 0.5 * (t.min() + t.max()) * across  # (2,)
+        if _closed_hand_inside(middle, d, lo, hi):
+            break
     top = P[np.linalg.norm(P[:, :2] - middle, axis=1) < PUSH_TOP_RADIUS_M, 2]
     top_z = float(top.max()) if len(top) else float(P[:, 2].max())
     tips_z = max(top_z - PUSH_PRESS_M, table_z + 0.003)
@@ -1940,6 +1990,27 @@ def plan_push(
     start = np.array([*pinch_xy, tips_z + CLOSED_TIPS_BELOW_PINCH_M])
     end = start + np.array([*(distance * d), 0.0])
     return PushPlan(d, start, end, yaw, float(gaps[near].min()))
+
+
+#: The closed hand's footprint around the closed fingertips' middle: this far either way
+#: along the closing axis (the fingers' 15 mm, above) and across it (fingers 2 and 3 at -44.6
+#: and +15.3 mm: 30 mm either way of their middle), each with a fingertip's 5 mm margin.
+CLOSED_HAND_ALONG_M = 0.02
+CLOSED_HAND_ACROSS_M = 0.035
+
+
+def _closed_hand_inside(middle: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """The closed hand's footprint (:data:`CLOSED_HAND_ALONG_M` along ``d``,
+    :data:`CLOSED_HAND_ACROSS_M` across it, around ``middle``; world xy) lies inside the walls'
+    inner faces ``lo``, ``hi``. Tuning bin 11: a part 11 mm from two walls, pushed diagonally
+    out of the corner; the closed hand came down with fingertip 2 on a wall's top, 18 mm
+    above where it was to press, and the part moved 14 mm instead of 50."""
+    across = np.array([-d[1], d[0]])
+    corners = np.array(
+        [middle + a * CLOSED_HAND_ALONG_M * d + b * CLOSED_HAND_ACROSS_M * across
+         for a in (-1, 1) for b in (-1, 1)]
+    )  # fmt: skip
+    return bool(np.all(corners >= lo) and np.all(corners <= hi))
 
 
 def _pushed_from_to(T: np.ndarray, plan: PushPlan) -> np.ndarray:
