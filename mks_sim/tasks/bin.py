@@ -1366,8 +1366,8 @@ def walls_block(
 
     The synthesis sees the walls only as sensed points and its fingertips as three points
     with a clearance; the real fingers reach up to 24 mm from those points. Tuning bin 11:
-    eight descents onto an upside-down part 13-40 mm from two walls were stopped by the
-    walls' top, 25-35 mm above the grasp, until the budget was spent."""
+    the descents onto an upside-down part near two walls stopped on the walls' top, 21-36
+    mm above the grasp, pick after pick until the budget was spent."""
     if getattr(cand, "rotation_world", None) is not None:
         return False
     if float(cand.pinch_world[2]) - FOOTPRINT_BELOW_PINCH_M >= table_z + BIN_WALL_M:
@@ -1874,8 +1874,9 @@ def _kept(ctl: Any) -> np.ndarray | None:
 #: close to a wall's inner face is pushed when no grasp is left: an open finger's footprint
 #: (:func:`finger_footprint`) reaches 35-36 mm beyond the face its pad is to close on, for
 #: the part's 20 mm and 60 mm pinches alike, and :func:`walls_block` keeps it off the walls.
-#: At 25 mm, tuning bin 11's upside-down part, pushed once to 28-33 mm from two walls, had
-#: every candidate over a wall and no push left: the bin stopped.
+#: At 25 mm, tuning bin 11's upside-down part, pushed once out of a corner, came to rest
+#: beyond that distance with every candidate over a wall, no push was planned, and the bin
+#: stopped.
 PUSH_NEAR_WALL_M = 0.04
 #: The closed hand comes down this far inside the part's edge nearest the wall: the closed
 #: fingers reach 15 mm on either side of the pinch point along the closing axis (measured:
