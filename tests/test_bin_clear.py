@@ -601,6 +601,26 @@ def _finger_vertices(world, band_m=0.025):
     return out
 
 
+def _preshaped_hand(width_m):
+    """(the bin world with one part, the pinch site's world rotation (3, 3) and position (3,))
+    with the simulated hand's fingers pre-shaped for a pinch ``width_m`` wide."""
+    import mujoco
+
+    from mks_sim.sim import names
+    from mks_sim.tasks import bin as binmod
+    from mks_sim.tasks.grasp import preshape_q
+
+    world = binmod.bin_world(None, count=1)
+    m, d = world.model, world.data
+    q = preshape_q(width_m)
+    for k in range(m.njnt):
+        if m.joint(k).name.split("/")[-1] in ("finger_1", "finger_2", "finger_3"):
+            d.qpos[m.jnt_qposadr[k]] = q
+    mujoco.mj_forward(m, d)
+    site = d.site(names.PINCH_SITE)
+    return world, site.xmat.reshape(3, 3).copy(), site.xpos.copy()
+
+
 @pytest.mark.parametrize("width_m", [0.02, 0.03, 0.05, 0.07, 0.09, 0.11])
 def test_the_finger_footprint_holds_the_open_fingers(width_m):
     """Every vertex of the simulated fingers' lowest 25 mm, the hand pointing down and
@@ -611,22 +631,12 @@ def test_the_finger_footprint_holds_the_open_fingers(width_m):
     "touch" round's 7 mm miss part of every finger."""
     from types import SimpleNamespace
 
-    import mujoco
     import numpy as np
 
-    from mks_sim.sim import names
     from mks_sim.tasks import bin as binmod
-    from mks_sim.tasks.grasp import PRESHAPE_MARGIN_M, fingertips_xy, preshape_q
+    from mks_sim.tasks.grasp import PRESHAPE_MARGIN_M, fingertips_xy
 
-    world = binmod.bin_world(None, count=1)
-    m, d = world.model, world.data
-    q = preshape_q(width_m)
-    for k in range(m.njnt):
-        if m.joint(k).name.split("/")[-1] in ("finger_1", "finger_2", "finger_3"):
-            d.qpos[m.jnt_qposadr[k]] = q
-    mujoco.mj_forward(m, d)
-    R = d.site(names.PINCH_SITE).xmat.reshape(3, 3)
-    pinch = d.site(names.PINCH_SITE).xpos.copy()
+    world, R, pinch = _preshaped_hand(width_m)
     assert R[2, 2] < -0.999  # the hand points down
     yaw = float(np.arctan2(R[1, 0], R[0, 0]))
     cand = SimpleNamespace(pinch_world=tuple(pinch), yaw_rad=yaw, width_m=width_m)
@@ -659,22 +669,12 @@ def test_walls_block_when_a_finger_would_come_down_on_a_wall(width_m):
     6.3 mm). Above the walls' top nothing blocks."""
     from types import SimpleNamespace
 
-    import mujoco
     import numpy as np
 
-    from mks_sim.sim import names
     from mks_sim.tasks import bin as binmod
-    from mks_sim.tasks.grasp import preshape_q
 
-    world = binmod.bin_world(None, count=1)
+    world, R, pinch = _preshaped_hand(width_m)
     m, d = world.model, world.data
-    q = preshape_q(width_m)
-    for k in range(m.njnt):
-        if m.joint(k).name.split("/")[-1] in ("finger_1", "finger_2", "finger_3"):
-            d.qpos[m.jnt_qposadr[k]] = q
-    mujoco.mj_forward(m, d)
-    R = d.site(names.PINCH_SITE).xmat.reshape(3, 3)
-    pinch = d.site(names.PINCH_SITE).xpos.copy()
     yaw0 = float(np.arctan2(R[1, 0], R[0, 0]))
     V = np.concatenate(_finger_vertices(world)) - pinch  # relative to the pinch point
     # the bin's walls: the four fixture boxes; their inner faces
