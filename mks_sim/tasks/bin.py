@@ -1974,12 +1974,17 @@ def plan_push(
     distance = float(np.clip(min(ahead) - PUSH_FAR_MARGIN_M, 0.0, PUSH_DISTANCE_M))
     if distance <= 0.0:
         return None
+
     # the closed hand comes down inside the walls: further in than PUSH_INSET_M where its
-    # footprint would reach over a wall (a corner's diagonal push), at most to the middle
-    for inset in np.arange(PUSH_INSET_M, max(PUSH_INSET_M, 0.5 * np.ptp(s)) + 1e-9, 0.002):
-        middle = (s.min() + inset) * d + 0.5 * (t.min() + t.max()) * across  # (2,)
-        if _closed_hand_inside(middle, d, lo, hi):
-            break
+    # footprint would reach over a wall (a corner's diagonal push), at most to the middle;
+    # where no inset brings it inside (a wall beside the part, across the push), at
+    # PUSH_INSET_M
+    def middle_at(inset: float) -> np.ndarray:
+        return (s.min() + inset) * d + 0.5 * (t.min() + t.max()) * across  # (2,)
+
+    insets = np.arange(PUSH_INSET_M, max(PUSH_INSET_M, 0.5 * np.ptp(s)) + 1e-9, 0.002)
+    inside = [k for k in insets if _closed_hand_inside(middle_at(k), d, lo, hi)]
+    middle = middle_at(inside[0] if inside else PUSH_INSET_M)
     top = P[np.linalg.norm(P[:, :2] - middle, axis=1) < PUSH_TOP_RADIUS_M, 2]
     top_z = float(top.max()) if len(top) else float(P[:, 2].max())
     tips_z = max(top_z - PUSH_PRESS_M, table_z + 0.003)
@@ -1995,9 +2000,11 @@ def plan_push(
 
 #: The closed hand's footprint around the closed fingertips' middle: this far either way
 #: along the closing axis (the fingers' 15 mm, above) and across it (fingers 2 and 3 at -44.6
-#: and +15.3 mm: 30 mm either way of their middle), each with a fingertip's 5 mm margin.
-CLOSED_HAND_ALONG_M = 0.02
-CLOSED_HAND_ACROSS_M = 0.035
+#: and +15.3 mm: 30 mm either way of their middle). With the 5 mm margin PUSH_INSET_M keeps
+#: as well, tuning bin 7's replayed push (a part leaning on one wall) was pressed 2 mm
+#: further in and did not move the part.
+CLOSED_HAND_ALONG_M = 0.015
+CLOSED_HAND_ACROSS_M = 0.030
 
 
 def _closed_hand_inside(middle: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
