@@ -1983,8 +1983,8 @@ def plan_push(
         return (s.min() + inset) * d + 0.5 * (t.min() + t.max()) * across  # (2,)
 
     insets = np.arange(PUSH_INSET_M, max(PUSH_INSET_M, 0.5 * np.ptp(s)) + 1e-9, 0.002)
-    inside = [k for k in insets if _closed_hand_inside(middle_at(k), d, lo, hi)]
-    middle = middle_at(inside[0] if inside else PUSH_INSET_M)
+    fits = (k for k in insets if _closed_hand_inside(middle_at(k), d, lo, hi))
+    middle = middle_at(next(fits, PUSH_INSET_M))
     top = P[np.linalg.norm(P[:, :2] - middle, axis=1) < PUSH_TOP_RADIUS_M, 2]
     top_z = float(top.max()) if len(top) else float(P[:, 2].max())
     tips_z = max(top_z - PUSH_PRESS_M, table_z + 0.003)
