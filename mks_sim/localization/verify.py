@@ -121,7 +121,8 @@ def batch_explained(
     T = np.asarray(matrices, dtype=np.float64).reshape(-1, 4, 4)
     if len(T) == 0:
         return np.zeros(0, dtype=np.intp)
-    moved = np.einsum("kij,mj->kmi", T[:, :3, :3], model_points) + T[:, None, :3, 3]
+    # (K, M, 3): p R^T + t by matmul (einsum: several times slower at these shapes)
+    moved = np.matmul(model_points[None], np.transpose(T[:, :3, :3], (0, 2, 1))) + T[:, None, :3, 3]
     d, _ = scene_tree.query(moved.reshape(-1, 3), distance_upper_bound=distance)
     return np.asarray(np.isfinite(d).reshape(len(T), -1).sum(axis=1), dtype=np.intp)
 

@@ -172,10 +172,13 @@ _SURFACES: dict[int, tuple[Any, Any]] = {}
 
 def _surface_model(name: str, mesh: Any) -> Any:
     """The polyhedral model (surface samples, corners, faces) of an object's mesh, built once
-    per mesh."""
+    per mesh, with its surface's nearest-sample grid (built once here: every ICP and score
+    of the workstation's localizations looks correspondences up in it)."""
     hit = _SURFACES.get(id(mesh))
     if hit is None or hit[0] is not mesh:
-        hit = (mesh, PolyhedralModel.from_mesh(mesh, name))
+        model = PolyhedralModel.from_mesh(mesh, name)
+        model.surface.with_lookup()
+        hit = (mesh, model)
         _SURFACES[id(mesh)] = hit
     return hit[1]
 

@@ -43,6 +43,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,11 +80,118 @@ class ModelSurface:
         """Diagonal of the bounding box (the object's size, points' units)."""
         return float(np.linalg.norm(np.ptp(self.points, axis=0)))
 
+    @property
+    def lookup(self) -> NearestLookup | None:
+        """The nearest-sample grid (:meth:`with_lookup`), None until it is built."""
+        out: NearestLookup | None = self.__dict__.get("_lookup")
+        return out
+
+    def with_lookup(self) -> ModelSurface:
+        """Build (once) the grid that answers :meth:`nearest` without the k-d tree, and
+        return this surface.
+
+        A long-lived model (the workstation's, built once per mesh) pays the build once
+        (0.3-0.5 s for the 4,000-sample cube and part) and its ICP, scoring and batch
+        inlier counts then look their correspondences up in an array instead of a tree
+        query: 800 scene points in 0.09 ms against 0.7. The answers are the sample nearest
+        each query's grid cell centre (cells of one sampling spacing): the exact nearest
+        sample in about 3 of 4 queries, at most 0.8 mm farther on the cube.
+        """
+        if self.lookup is None:
+            self.__dict__["_lookup"] = NearestLookup.build(self.points, self.tree, self.spacing)
+        return self
+
+    def nearest(self, points: FloatArray, max_distance: float) -> tuple[FloatArray, IntArray]:
+        """``(distance, index)`` of each point's nearest sample, as ``tree.query(points,
+        distance_upper_bound=max_distance)`` answers (misses: inf and ``len(points)``); by
+        the grid once :meth:`with_lookup` built it, else by the k-d tree."""
+        lookup = self.lookup
+        if lookup is None:
+            d, j = self.tree.query(points, distance_upper_bound=max_distance)
+            return d, j
+        return lookup.query(points, max_distance, self.points, self.tree)
+
     @functools.cached_property
     def offsets(self) -> FloatArray:
         """(M,) ``points . normals``: the tangent-plane offset of each sample (ICP residuals
         ``p . n - offset`` without gathering the points)."""
         return np.asarray(np.einsum("ij,ij->i", self.points, self.normals), dtype=np.float64)
+
+
+#: Cells of a :class:`NearestLookup` at most (the cell grows past the sampling spacing for a
+#: large or finely sampled model).
+LOOKUP_MAX_CELLS = 3_000_000
+#: The lookup's grid reaches this fraction of the model's size beyond its bounding box
+#: (ICP's gates: 4 inlier distances, at most a tenth of the size; farther queries go to
+#: the tree).
+LOOKUP_MARGIN = 0.15
+
+
+@dataclass(frozen=True, eq=False)
+class NearestLookup:
+    """A regular grid around a model surface whose cells hold the index of the sample
+    nearest each cell centre (computed once by the k-d tree): nearest-sample queries
+    become array lookups.
+
+    Attributes:
+        origin: (3,) centre of cell (0, 0, 0), model frame.
+        cell: cell edge.
+        shape: cells per axis.
+        index: (prod(shape),) int32 sample index per cell, C order.
+        margin: how far the grid reaches beyond the samples' bounding box (a query outside
+            the grid is at least this far from every sample).
+    """
+
+    origin: FloatArray
+    cell: float
+    shape: tuple[int, int, int]
+    index: NDArray[np.int32]
+    margin: float
+
+    @classmethod
+    def build(cls, points: FloatArray, tree: cKDTree, spacing: float) -> NearestLookup:
+        """The grid over the bounding box plus :data:`LOOKUP_MARGIN` of the size, cells of
+        ``spacing`` (larger when that would exceed :data:`LOOKUP_MAX_CELLS`)."""
+        lo, hi = points.min(axis=0), points.max(axis=0)
+        margin = LOOKUP_MARGIN * float(np.linalg.norm(hi - lo))
+        lo, hi = lo - margin, hi + margin
+        cell = max(float(spacing), 1e-12)
+        extent = hi - lo
+        cell = max(cell, float(np.cbrt(np.prod(extent) / LOOKUP_MAX_CELLS)))
+        n = np.ceil(extent / cell).astype(np.intp) + 1
+        shape = (int(n[0]), int(n[1]), int(n[2]))
+        axes = [lo[d] + cell * np.arange(shape[d]) for d in range(3)]
+        centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        _, j = tree.query(centres, workers=-1)
+        return cls(lo, cell, shape, np.asarray(j, dtype=np.int32), margin)
+
+    def query(
+        self, p: FloatArray, max_distance: float, points: FloatArray, tree: cKDTree
+    ) -> tuple[FloatArray, IntArray]:
+        """``(distance, index)`` as ``tree.query(p, distance_upper_bound=max_distance)``:
+        the distance is exact to the sample returned; queries outside the grid go to the
+        tree when ``max_distance`` reaches past the grid's margin, else miss."""
+        c = np.rint((p - self.origin) / self.cell).astype(np.intp)
+        nx, ny, nz = self.shape
+        inside = (
+            (c[:, 0] >= 0) & (c[:, 0] < nx) & (c[:, 1] >= 0) & (c[:, 1] < ny)
+            & (c[:, 2] >= 0) & (c[:, 2] < nz)
+        )  # fmt: skip
+        miss = len(points)
+        j = np.full(len(p), miss, dtype=np.intp)
+        d = np.full(len(p), np.inf)
+        ci = c[inside]
+        ji = self.index[(ci[:, 0] * ny + ci[:, 1]) * nz + ci[:, 2]].astype(np.intp)
+        di = np.sqrt(np.sum((p[inside] - points[ji]) ** 2, axis=1))
+        ok = di < max_distance
+        idx = np.flatnonzero(inside)
+        j[idx[ok]] = ji[ok]
+        d[idx[ok]] = di[ok]
+        if not inside.all():
+            if max_distance > self.margin:  # else no sample is near enough to a query outside
+                out = np.flatnonzero(~inside)
+                d[out], j[out] = tree.query(p[out], distance_upper_bound=max_distance)
+        return d, j
 
 
 @dataclass(frozen=True, eq=False)
@@ -225,7 +333,7 @@ def icp_point_to_plane(
     history: list[float] = []
     for it in range(1, max_iterations + 1):  # noqa: B007 - reported
         p = scene @ scene_to_model[:3, :3].T + scene_to_model[:3, 3]  # (N, 3) model frame
-        dist, j = surface.tree.query(p, distance_upper_bound=max_distance)
+        dist, j = surface.nearest(p, max_distance)
         if compiled:
             H, g, ss, used = point_to_plane_system(p, dist, j, normals, offsets, trim)
             if used < 6:
@@ -306,7 +414,7 @@ def score_pose(
     """
     scene = np.asarray(scene_points, dtype=np.float64)
     p = scene @ invert(matrix)[:3, :3].T + invert(matrix)[:3, 3]
-    dist, j = surface.tree.query(p, distance_upper_bound=inlier_distance + surface.spacing)
+    dist, j = surface.nearest(p, inlier_distance + surface.spacing)
     ok = np.isfinite(dist)
     r_all = np.zeros(len(p))
     r_all[ok] = np.einsum("ij,ij->i", p[ok] - surface.points[j[ok]], surface.normals[j[ok]])
@@ -340,9 +448,9 @@ def batch_inlier_fractions(
         return np.zeros(len(T))
     R = T[:, :3, :3]
     # model frame: R^T (p - t)
-    p = np.einsum("kji,knj->kni", R, scene[None, :, :] - T[:, None, :3, 3])  # (K, N, 3)
+    p = np.matmul(scene[None, :, :] - T[:, None, :3, 3], R)  # (K, N, 3): (p - t) R = R^T (p - t)
     flat = p.reshape(-1, 3)
-    dist, j = surface.tree.query(flat, distance_upper_bound=inlier_distance + surface.spacing)
+    dist, j = surface.nearest(flat, inlier_distance + surface.spacing)
     ok = np.isfinite(dist)
     r = np.full(len(flat), np.inf)
     jj = j[ok]
