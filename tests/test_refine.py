@@ -86,7 +86,8 @@ def test_icp_with_the_lookup_grid_converges_to_ground_truth(seed: int) -> None:
     assert res.rmse < 0.001
 
 
-def test_the_lookup_grid_answers_as_the_tree_within_a_cell() -> None:
+@pytest.mark.parametrize("compiled", _paths())
+def test_the_lookup_grid_answers_as_the_tree_within_a_cell(compiled: bool) -> None:
     """Brute force over every sample: a hit's distance is exact and under the bound, at most
     a cell diagonal farther than the true nearest; a query whose true nearest is a cell
     diagonal inside the bound is a hit; outside the grid the answer is the tree's."""
@@ -101,7 +102,7 @@ def test_the_lookup_grid_answers_as_the_tree_within_a_cell() -> None:
     true = np.sqrt(((q[:, None, :] - surface.points[None]) ** 2).sum(axis=2)).min(axis=1)
     diag = np.sqrt(3.0) * lk.cell
     for bound in (0.004, 0.012, 0.05):
-        d, j = surface.nearest(q, bound)
+        d, j = lk.query(q, bound, surface.points, surface.tree, compiled=compiled)
         hit = np.isfinite(d)
         assert np.all(j[~hit] == len(surface.points))
         assert np.allclose(d[hit], np.linalg.norm(q[hit] - surface.points[j[hit]], axis=1))
@@ -113,7 +114,7 @@ def test_the_lookup_grid_answers_as_the_tree_within_a_cell() -> None:
     top = lk.origin + lk.cell * (np.array(lk.shape) - 0.5)
     far = q[np.any((q < lk.origin - lk.cell) | (q > top + lk.cell / 2), axis=1)]
     assert len(far) > 50
-    d, j = surface.nearest(far, 1.0)
+    d, j = lk.query(far, 1.0, surface.points, surface.tree, compiled=compiled)
     d0, j0 = surface.tree.query(far, distance_upper_bound=1.0)
     assert np.array_equal(j, j0) and np.allclose(d, d0)
 
@@ -150,6 +151,57 @@ def test_group_equivalent_recognises_cube_symmetries() -> None:
     assert len(set(labels[:24])) == 1 and labels[24] == 24
     labels = group_equivalent(mats, None, translation_tol=0.01)
     assert len(set(labels)) == 24  # without symmetries they are distinct
+
+
+@pytest.mark.parametrize("n", [60, 300])  # every pair at once; a pose at a time
+def test_group_equivalent_labels_as_the_first_representative_rule(n: int) -> None:
+    """Brute force: pose i joins the first earlier representative within the translation
+    tolerance whose rotation times some symmetry is within the angle; else it represents."""
+    from mks_sim.geometry.transforms import rotation_angle_deg
+
+    rng = np.random.default_rng(5)
+    rots = cube_rotations()
+    base = [random_rotation(rng) for _ in range(4)]
+    mats = []
+    for _ in range(n):  # clusters: a few rotations up to symmetry, jittered by 0-5 deg
+        R = base[rng.integers(4)] @ rots[rng.integers(24)]
+        T = _perturb(make_transform(R, rng.integers(2, size=3) * 0.02), rng.uniform(0, 5), 0, rng)
+        T[:3, 3] += rng.normal(0, 0.0015, 3)
+        mats.append(T)
+    for syms in (rots, None):
+        labels = group_equivalent(mats, syms, rotation_tol_deg=5.0, translation_tol=0.006)
+        all_s = [np.eye(3)] + ([] if syms is None else list(syms))
+        reps: list[int] = []
+        expect = []
+        for i, M in enumerate(mats):
+            hit = [
+                r for r in reps
+                if np.linalg.norm(mats[r][:3, 3] - M[:3, 3]) <= 0.006
+                and min(rotation_angle_deg(mats[r][:3, :3] @ S, M[:3, :3]) for S in all_s) <= 5.0
+            ]  # fmt: skip
+            expect.append(hit[0] if hit else i)
+            if not hit:
+                reps.append(i)
+        assert list(labels) == expect
+        if syms is not None:
+            assert 5 < len(reps) < n - 5  # both joins and new groups happen
+
+
+def test_matching_symmetries_of_many_poses_are_each_poses_nearest_symmetry() -> None:
+    """The batched symmetry search gives, per pose, the symmetry S minimising the angle
+    between R_B S and R_A (brute force over the 24)."""
+    from mks_sim.geometry.transforms import rotation_angle_deg
+    from mks_sim.models.refine import _matching_symmetries
+
+    rng = np.random.default_rng(6)
+    rots = np.concatenate([np.eye(3)[None], cube_rotations()])
+    B = make_transform(random_rotation(rng), [0.0, 0.0, 0.0])
+    As = [_perturb(make_transform(B[:3, :3] @ rots[k], [0, 0, 0]), 3.0, 0.0, rng)
+          for k in rng.integers(len(rots), size=40)]  # fmt: skip
+    got = _matching_symmetries(As, B, rots)
+    for A, S in zip(As, got, strict=True):
+        angles = [rotation_angle_deg(B[:3, :3] @ R, A[:3, :3]) for R in rots]
+        assert np.array_equal(S, rots[int(np.argmin(angles))])
 
 
 def test_verify_ranks_true_pose_first_and_lists_equivalents() -> None:

@@ -153,23 +153,41 @@ def fit_plane(points: ArrayLike, iterations: int = 3) -> Plane:
         :class:`Plane` (normal sign arbitrary) with the RMS residual of the kept points.
     """
     pts = as_points(points, "fit_plane: points", min_points=3)
+    # Moments of the kept points by products over a 0/1 weight, on the (3, N) transpose
+    # about a point of the set: row gathers, axis means and np.median of an (N, 3) array
+    # cost ~0.3 ms each on the 13,000 table points (about 10x these); the shift keeps the
+    # digits (the table's z^2 ~ 0.56 m^2 against a variance of 1e-7).
+    ref = pts[len(pts) // 2]
+    qt = np.ascontiguousarray(pts.T) - ref[:, None]  # (3, N)
     keep = np.ones(len(pts), dtype=bool)
     normal, offset = np.array([0.0, 0.0, 1.0]), 0.0
     for _ in range(max(1, iterations)):
-        sub = pts[keep]
-        c = sub.mean(axis=0)
-        d = sub - c
+        w = keep.astype(np.float64)
+        n = float(w.sum())
+        c = (qt @ w) / n
         # the smallest principal axis: eigenvector of the 3x3 scatter (no (N, 3) SVD)
-        normal = np.linalg.eigh(d.T @ d)[1][:, 0]
+        scatter = (qt * w) @ qt.T - n * np.outer(c, c)
+        normal = np.linalg.eigh(scatter)[1][:, 0]
         offset = float(normal @ c)
-        r = np.abs(pts @ normal - offset)
-        sigma = 1.4826 * np.median(r[keep])
+        r = np.abs(normal @ qt - offset)
+        sigma = 1.4826 * _median(r[keep])
         new_keep = r <= max(3.0 * sigma, 1e-12)
         if new_keep.sum() < 3 or np.array_equal(new_keep, keep):
             break
         keep = new_keep
-    r = pts[keep] @ normal - offset
-    return Plane(normal, offset, float(np.sqrt(np.mean(r**2))))
+    r = (normal @ qt - offset)[keep]
+    return Plane(normal, offset + float(normal @ ref), float(np.sqrt(np.mean(r**2))))
+
+
+def _median(x: FloatArray) -> float:
+    """``np.median`` of a 1-D array by one partition (np.median's checks and copies cost
+    several times the partition on a few thousand values)."""
+    n = len(x)
+    k = n // 2
+    if n % 2:
+        return float(np.partition(x, k)[k])
+    part = np.partition(x, [k - 1, k])
+    return float((part[k - 1] + part[k]) / 2.0)
 
 
 def fit_plane_ransac(

@@ -78,3 +78,41 @@ def point_to_plane_system(
         for v in range(u):
             h[u, v] = h[v, u]
     return h, g, ss, used
+
+
+@nb.njit(cache=True)
+def lookup_nearest(
+    p: np.ndarray,
+    origin: np.ndarray,
+    cell: float,
+    shape: np.ndarray,
+    index: np.ndarray,
+    points: np.ndarray,
+    max_distance: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    """The compiled :meth:`mks_sim.models.refine.NearestLookup.query` over the grid:
+    ``(distance, index, outside)``: per query the sample of its cell (rounded to the nearest
+    cell centre), the exact distance to it, a miss (inf, ``len(points)``) at or beyond
+    ``max_distance``; ``outside`` marks the queries off the grid (misses here)."""
+    n = p.shape[0]
+    miss = points.shape[0]
+    d = np.full(n, np.inf)
+    j = np.full(n, miss, np.int64)
+    outside = np.zeros(n, np.bool_)
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    for i in range(n):
+        cx = int(np.rint((p[i, 0] - origin[0]) / cell))
+        cy = int(np.rint((p[i, 1] - origin[1]) / cell))
+        cz = int(np.rint((p[i, 2] - origin[2]) / cell))
+        if cx < 0 or cx >= nx or cy < 0 or cy >= ny or cz < 0 or cz >= nz:
+            outside[i] = True
+            continue
+        q = index[(cx * ny + cy) * nz + cz]
+        dx = p[i, 0] - points[q, 0]
+        dy = p[i, 1] - points[q, 1]
+        dz = p[i, 2] - points[q, 2]
+        di = np.sqrt(dx * dx + dy * dy + dz * dz)
+        if di < max_distance:
+            d[i] = di
+            j[i] = q
+    return d, j, outside

@@ -166,11 +166,36 @@ class NearestLookup:
         return cls(lo, cell, shape, np.asarray(j, dtype=np.int32), margin)
 
     def query(
-        self, p: FloatArray, max_distance: float, points: FloatArray, tree: cKDTree
+        self,
+        p: FloatArray,
+        max_distance: float,
+        points: FloatArray,
+        tree: cKDTree,
+        compiled: bool | None = None,
     ) -> tuple[FloatArray, IntArray]:
         """``(distance, index)`` as ``tree.query(p, distance_upper_bound=max_distance)``:
         the distance is exact to the sample returned; queries outside the grid go to the
-        tree when ``max_distance`` reaches past the grid's margin, else miss."""
+        tree when ``max_distance`` reaches past the grid's margin, else miss.
+        ``compiled``: one numba pass (:func:`mks_sim.models._refine_kernels.lookup_nearest`)
+        or numpy; None: compiled when numba imports."""
+        if compiled is None:
+            compiled = _compiled_available()
+        if compiled:
+            from mks_sim.models._refine_kernels import lookup_nearest
+
+            d, j, off = lookup_nearest(
+                np.ascontiguousarray(p, dtype=np.float64),
+                self.origin,
+                self.cell,
+                np.asarray(self.shape, dtype=np.int64),
+                self.index,
+                points,
+                float(max_distance),
+            )
+            if max_distance > self.margin and off.any():
+                out = np.flatnonzero(off)
+                d[out], j[out] = tree.query(p[out], distance_upper_bound=max_distance)
+            return d, j.astype(np.intp, copy=False)
         c = np.rint((p - self.origin) / self.cell).astype(np.intp)
         nx, ny, nz = self.shape
         inside = (
@@ -228,6 +253,10 @@ class VerifiedHypothesis:
 
 
 _DIAG6 = np.diag_indices(6)
+#: :func:`group_equivalent` compares every pair at once up to this many poses (the (H, S, H)
+#: cosines: 256 poses and the cube's 24 symmetries, 1.6 million numbers); a pose at a time
+#: beyond.
+_GROUP_BATCH = 256
 #: Scene points from which ICP iterations use the compiled normal equations (numba).
 ICP_COMPILED_MIN_POINTS = 64
 #: ``stall``: ICP stops once its RMS residual fell by less than this fraction over the last
@@ -481,6 +510,16 @@ def _matching_symmetry(A: FloatArray, B: FloatArray, syms: FloatArray) -> FloatA
     return syms[int(np.argmin(_angles_deg(rel, syms)))]
 
 
+def _matching_symmetries(As: Sequence[FloatArray], B: FloatArray, syms: FloatArray) -> FloatArray:
+    """(K, 3, 3) :func:`_matching_symmetry` of each of K poses ``As`` to ``B``, at once."""
+    if len(As) == 0:
+        return np.zeros((0, 3, 3))
+    rel = np.matmul(B[:3, :3].T, np.asarray(As, dtype=np.float64)[:, :3, :3])  # (K, 3, 3)
+    cos = (np.matmul(rel.reshape(len(rel), 9), syms.reshape(len(syms), 9).T) - 1.0) / 2.0
+    angles = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))  # (K, S), as _angles_deg
+    return syms[np.argmin(angles, axis=1)]
+
+
 def _symmetric_images(T: FloatArray, related: list[FloatArray]) -> FloatArray:
     """Distinct poses T @ S for the non-identity S in ``related`` (the equivalents)."""
     out: list[FloatArray] = []
@@ -521,6 +560,24 @@ def group_equivalent(
     labels = np.arange(len(mats))
     reps: list[int] = []
     cos_tol = np.cos(np.radians(rotation_tol_deg))
+    if 1 < len(mats) <= _GROUP_BATCH:
+        # every pair at once: R_b = R_a S <=> trace((R_a S)^T R_b) = 1 + 2 cos(angle), one
+        # (H S, 9) x (9, H) product; then the same first-representative rule as below
+        h = len(mats)
+        R = mats[:, :3, :3]
+        RS = np.matmul(R[:, None], syms[None]).reshape(h, len(syms), 9)  # (H, S, 9)
+        cos = (np.matmul(RS, R.reshape(h, 9).T) - 1.0) / 2.0  # (H, S, H): [a, s, b]
+        t = mats[:, :3, 3]
+        near = np.linalg.norm(t[:, None, :] - t[None, :, :], axis=2) <= translation_tol
+        same = near & (cos.max(axis=1) >= cos_tol)  # [rep a, pose b]
+        is_rep = np.zeros(h, dtype=bool)
+        for i in range(h):
+            hit = np.flatnonzero(same[:i, i] & is_rep[:i])
+            if hit.size:
+                labels[i] = hit[0]
+            else:
+                is_rep[i] = True
+        return labels
     for i, M in enumerate(mats):
         if reps:
             R_reps = mats[reps, :3, :3]  # (r, 3, 3)
@@ -755,11 +812,8 @@ def verify_hypotheses(
         else:
             T_new = T_coarse
         score, frac, rmse = score_pose(surface, scene, T_new, inlier_distance)
-        related = [
-            _matching_symmetry(ordered[k].matrix, h.matrix, syms)
-            for k in range(len(ordered))
-            if init_labels[k] == i and k != i
-        ]
+        members = [k for k in range(len(ordered)) if init_labels[k] == i and k != i]
+        related = list(_matching_symmetries([ordered[k].matrix for k in members], h.matrix, syms))
         # The reference point moves with the model: p_ref_model = T_init^-1 p_ref.
         ref_model = invert(h.matrix)[:3, :3] @ h.reference_point + invert(h.matrix)[:3, 3]
         ref = T_new[:3, :3] @ ref_model + T_new[:3, 3]
