@@ -488,11 +488,12 @@ def vertex_hypotheses(
             continue
         M = c_normals[sel]  # (K', 3, 3) rows = model normals
         # Batched Kabsch: R m_i ~ n_i.
-        R = rotation_from_covariance(np.einsum("kji,jl->kil", M, Nd))  # (K', 3, 3)
-        cos = np.einsum("kij,kmj,mi->km", R, M, Nd).min(axis=1)  # worst normal agreement
+        R = rotation_from_covariance(np.matmul(np.transpose(M, (0, 2, 1)), Nd))  # (K', 3, 3)
+        # worst normal agreement: min over m of (R_k m_m) . n_m (matmul; einsum is slower)
+        cos = (np.matmul(M, np.transpose(R, (0, 2, 1))) * Nd[None]).sum(axis=2).min(axis=1)
         good = cos >= cos_max
         R, kept = R[good], sel[good]
-        t = detected.points[di] - np.einsum("kij,kj->ki", R, c_point[kept])  # (K'', 3)
+        t = detected.points[di] - np.matmul(R, c_point[kept][:, :, None])[:, :, 0]  # (K'', 3)
         moved = np.matmul(cpts[None], np.transpose(R, (0, 2, 1))) + t[:, None, :]  # (K'', V, 3)
         _, j = det_tree.query(moved.reshape(-1, 3), distance_upper_bound=vote_distance)
         j = j.reshape(len(R), -1)  # (K'', V) detected vertex of each model corner (n: none)

@@ -393,21 +393,27 @@ class PolyhedralModel:
 
     # ---- LocalizableModel
 
-    @property
+    @functools.cached_property
     def vertexes(self) -> FloatArray:
-        """(V, 3) the corner positions."""
-        return np.stack([c.point for c in self.corners])
+        """(V, 3) the corner positions (read-only; computed once)."""
+        out = np.stack([c.point for c in self.corners])
+        out.setflags(write=False)
+        return out
 
-    @property
+    @functools.cached_property
     def corner_triples(self) -> tuple[FloatArray, FloatArray]:
         """Every corner with every ordered triple of its face normals: (K, 3) corner
-        positions and (K, 3, 3) normals (rows)."""
+        positions and (K, 3, 3) normals (rows); read-only, computed once (the vertex
+        matcher asks for them per segment)."""
         pts, nrm = [], []
         for c in self.corners:
             for perm in itertools.permutations(range(len(c.normals)), 3):
                 pts.append(c.point)
                 nrm.append(c.normals[list(perm)])
-        return np.array(pts).reshape(-1, 3), np.array(nrm).reshape(-1, 3, 3)
+        p, n = np.array(pts).reshape(-1, 3), np.array(nrm).reshape(-1, 3, 3)
+        p.setflags(write=False)
+        n.setflags(write=False)
+        return p, n
 
     @functools.cached_property
     def face_extremes(self) -> tuple[FloatArray, FloatArray]:
