@@ -177,7 +177,7 @@ def _surface_model(name: str, mesh: Any) -> Any:
     hit = _SURFACES.get(id(mesh))
     if hit is None or hit[0] is not mesh:
         model = PolyhedralModel.from_mesh(mesh, name)
-        model.surface.with_lookup()
+        _with_lookup(model)
         hit = (mesh, model)
         _SURFACES[id(mesh)] = hit
     return hit[1]
@@ -232,6 +232,14 @@ def _resolve_model(
 _FREEFORM: dict[int, tuple[Any, Any]] = {}
 
 
+def _with_lookup(model: Any) -> None:
+    """Give a long-lived model's surface its nearest-sample grid (once; the database and
+    the caches here keep the model for the process)."""
+    surface = getattr(model, "surface", None)
+    if surface is not None and hasattr(surface, "with_lookup"):
+        surface.with_lookup()
+
+
 def _is_freeform(spec: Any) -> bool:
     """The object is localized by its free-form model: its default kind says so, or it names
     no kind but the polyhedral one while its mesh is mostly curved (``mesh_kind``: the
@@ -251,6 +259,7 @@ def freeform_model(spec: Any, db: ModelDatabase) -> tuple[str, Any]:
     if "freeform" in spec.models:
         try:
             entry = spec.model("freeform", db=db)
+            _with_lookup(entry)
             return str(getattr(entry, "name", spec.name)), entry
         except NotFound as exc:
             log.info("object %r: %s; building the free-form model from its mesh", spec.name, exc)
@@ -259,6 +268,7 @@ def freeform_model(spec: Any, db: ModelDatabase) -> tuple[str, Any]:
         from mks_sim.localization.model import model_from_mesh
 
         hit = (spec.mesh, model_from_mesh(spec.mesh, f"{spec.name}_freeform", "freeform")[0])
+        _with_lookup(hit[1])
         _FREEFORM[id(spec.mesh)] = hit
     return f"{spec.name}_freeform", hit[1]
 

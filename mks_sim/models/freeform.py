@@ -40,6 +40,7 @@ Tables (model points, signatures, surface) save to and load from ``.npz``.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 from dataclasses import asdict, dataclass, field, replace
@@ -458,6 +459,13 @@ class FreeformModel:
         """(M, 3) model surface samples, model frame."""
         return self._surface_points
 
+    @functools.cached_property
+    def surface(self) -> ModelSurface:
+        """The surface samples as a :class:`~mks_sim.models.refine.ModelSurface` (k-d tree;
+        built once: the verification of every :meth:`localize` uses it).
+        ``model.surface.with_lookup()`` adds the nearest-sample grid for a long-lived model."""
+        return ModelSurface.from_arrays(self._surface_points, self._surface_normals)
+
     def surface_normals(self) -> FloatArray:
         """(M, 3) outward unit normals of :meth:`surface_points`."""
         return self._surface_normals
@@ -515,7 +523,7 @@ class FreeformModel:
         """
         cfg = self.config
         scene = np.asarray(scene_points, dtype=np.float64)
-        surface = ModelSurface.from_arrays(self._surface_points, self._surface_normals)
+        surface = self.surface
         d_in = inlier_distance or float(cfg.spacing or 0.0)
 
         def verify(hyps: list[PoseHypothesis], n_icp: int) -> list[VerifiedHypothesis]:
