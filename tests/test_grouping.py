@@ -294,6 +294,38 @@ def test_compiled_region_growing_matches_numpy_loop() -> None:
         assert np.array_equal(got, want)
 
 
+def test_compiled_boundary_absorption_matches_numpy_passes() -> None:
+    """The numba kernel gives the unlabelled edge points the same planes as the numpy
+    reference passes (noisy cube: regions grown, their planes fitted), and some are given."""
+    from mks_sim.lowlevel import _gridknn
+    from mks_sim.lowlevel.regions import _absorb_boundary, fit_plane, symmetric_adjacency
+
+    if not _gridknn.available():
+        pytest.skip("numba not importable")
+    from mks_sim.lowlevel.regions import _grow
+
+    rng = np.random.default_rng(4)
+    pts, _ = _cube(3000, 0.05, rng)
+    g = build_graph(pts, m=12)
+    sn = estimate_normals(pts, g)
+    order = np.argsort(sn.curvature, kind="stable")
+    grown, count = _grow(
+        symmetric_adjacency(g), pts, sn.normals, curvature_code(sn.curvature) < 0, order,
+        float(np.cos(np.radians(12.0))), 0.2, compiled=False,
+    )  # fmt: skip
+    sizes = np.bincount(grown[grown >= 0], minlength=count)
+    keep = np.flatnonzero(sizes >= 40)
+    labels = np.full(len(pts), -1, dtype=np.intp)
+    for rid, r in enumerate(keep):
+        labels[grown == r] = rid
+    planes = [fit_plane(pts[labels == rid]) for rid in range(len(keep))]
+    want, got = labels.copy(), labels.copy()
+    _absorb_boundary(pts, g, want, planes, 0.1, compiled=False)
+    _absorb_boundary(pts, g, got, planes, 0.1, compiled=True)
+    assert np.array_equal(got, want)
+    assert np.count_nonzero(want >= 0) > np.count_nonzero(labels >= 0)
+
+
 def test_compiled_ring_moments_match_sparse_ring_matrix() -> None:
     """Two- and three-ring normals and surface variation of the compiled kernel equal the
     sparse reference (PCA over the rows of the ring matrix)."""

@@ -161,3 +161,49 @@ def ring_moments(
         out[i, 4] = a12 / hi
         out[i, 5] = a22 / hi
     return out
+
+
+@nb.njit(cache=True)
+def absorb_boundary(
+    indptr: np.ndarray,
+    indices: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    normals: np.ndarray,
+    offsets: np.ndarray,
+    distance: float,
+    passes: int,
+) -> None:  # pragma: no cover - compiled
+    """The compiled twin of ``regions._absorb_boundary`` (in place): per pass, each
+    unlabelled point takes the label of the plane, among its labelled SPG neighbours'
+    (row order; the first on ties), it lies nearest to, when within ``distance``; a pass
+    reads the labels as they were before it."""
+    n = labels.shape[0]
+    new = labels.copy()
+    for _ in range(passes):
+        changed = False
+        for i in range(n):
+            if labels[i] >= 0:
+                continue
+            best = np.inf
+            choice = -1
+            for e in range(indptr[i], indptr[i + 1]):
+                lab = labels[indices[e]]
+                if lab < 0:
+                    continue
+                d = abs(
+                    points[i, 0] * normals[lab, 0]
+                    + points[i, 1] * normals[lab, 1]
+                    + points[i, 2] * normals[lab, 2]
+                    - offsets[lab]
+                )
+                if d < best:
+                    best = d
+                    choice = lab
+            if choice >= 0 and best <= distance:
+                new[i] = choice
+                changed = True
+        if not changed:
+            return
+        for i in range(n):
+            labels[i] = new[i]
