@@ -168,7 +168,10 @@ class Representation:
 
     @cached_property
     def _raw_tree(self) -> cKDTree:
-        return _tree(self.raw)
+        # unpacked nodes and larger leaves: the workstation's 23,700-point scan in 3.0 ms
+        # against 4.7; its one use there is the statistics that set the voxel (the voxel
+        # points get their own tree), and it answers queries as fast
+        return cKDTree(self.raw, balanced_tree=False, compact_nodes=False, leafsize=32)
 
     @cached_property
     def _raw_stats(self) -> tuple[float, float]:
