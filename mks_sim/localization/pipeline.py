@@ -1045,8 +1045,9 @@ def localize_polyhedral(
         hit = checked.get(id(h))
         if hit is None or hit[0] is not h:
             c = consistency(
-                h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts
-            )
+                h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts,
+                surface=surface,
+            )  # fmt: skip
             hit = (h, _whole(c))
             checked[id(h)] = hit
         return hit[1]

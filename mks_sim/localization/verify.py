@@ -15,7 +15,7 @@ from __future__ import annotations
 import itertools
 import weakref
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +23,9 @@ from scipy.spatial import cKDTree
 
 from mks_sim.lowlevel.regions import Plane, fit_plane_ransac
 from mks_sim.models.pose import PoseHypothesis
+
+if TYPE_CHECKING:
+    from mks_sim.models.refine import ModelSurface
 
 __all__ = [
     "Consistency",
@@ -274,6 +277,7 @@ def consistency(
     d: float,
     cloud_tree: cKDTree | None = None,
     elsewhere: NDArray[np.bool_] | None = None,
+    surface: ModelSurface | None = None,
 ) -> Consistency:
     """Does the posed model (``T`` model -> world) agree with what the sensors saw?
 
@@ -284,6 +288,11 @@ def consistency(
     table plane by more than ``d``. ``elsewhere``: (N,) mask over ``cloud``, points another
     object explains (a sphere set aside): never counted unexplained (a point inside the
     model still counts as inside).
+
+    ``surface``: the model's :class:`~mks_sim.models.refine.ModelSurface` over the same
+    samples (``surface.points is surface_pts``); when it has its nearest-sample grid, the
+    points' nearest samples are looked up there (3,000 points in 0.2 ms against 5 by the
+    tree; a sample at most a cell diagonal farther than the nearest, 0.8 mm on the cube).
     """
     R, t = T[:3, :3], T[:3, 3]
     P = surface_pts @ R.T + t
@@ -306,7 +315,10 @@ def consistency(
         # nearest model sample in the model frame: the model's tree is built once per model
         model_tree = _model_tree(surface_pts)
         q = (near - t) @ R
-        dist, idx = model_tree.query(q)
+        if surface is not None and surface.lookup is not None and surface.points is surface_pts:
+            dist, idx = surface.nearest(q, np.inf)
+        else:
+            dist, idx = model_tree.query(q)
         close = dist <= d
         explained = close & seen[idx]
         # a point whose nearest sample faces away may still have a seen one within d
