@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from mks_sim.geometry.meshes import box_mesh, sample_surface
 from mks_sim.geometry.transforms import make_transform
 from mks_sim.localization.verify import consistency
 from mks_sim.lowlevel.regions import Plane
+from mks_sim.models.refine import ModelSurface
 
 
 def _brute(T, pts, nrm, cloud, table, d):  # noqa: ANN001, ANN202
@@ -98,6 +100,39 @@ def test_consistency_counts_match_brute_force(shift: tuple[float, float, float])
     # a second call reuses the model's cached tree and gives the same counts
     again = consistency(Ts, pts, nrm, cloud, table, d)
     assert again.as_dict() == got.as_dict()
+
+
+@pytest.mark.parametrize(
+    "shift", [(0.0, 0.0, 0.0), (0.012, -0.004, 0.0), (0.0, 0.0, -0.006), (0.0, 0.0, 0.02)]
+)
+def test_consistency_with_the_lookup_grid_moves_only_points_near_the_distance(
+    shift: tuple[float, float, float],
+) -> None:
+    """With the surface's nearest-sample grid the verdict is the tree's, and a count moves
+    only for a point whose distance to the posed samples is within a grid cell's diagonal
+    of the explained distance ``d``."""
+    rng = np.random.default_rng(5)
+    pts, nrm = sample_surface(box_mesh(0.05), 8000, rng=rng)
+    T = make_transform(np.eye(3), [0.0, 0.0, 0.775])
+    P = pts @ T[:3, :3].T + T[:3, 3]
+    vis = (nrm[:, 2] > 0.5) | (nrm[:, 0] > 0.5) | (nrm[:, 1] < -0.5)
+    g = rng.uniform(-0.06, 0.06, size=(4000, 2))
+    table_pts = np.c_[g, 0.75 + rng.normal(0, 0.0005, len(g))]
+    strays = rng.uniform([-0.03, -0.03, 0.74], [0.03, 0.03, 0.81], size=(200, 3))
+    cloud = np.concatenate([P[vis] + rng.normal(0, 0.0005, (int(vis.sum()), 3)), table_pts, strays])
+    table = Plane(np.array([0.0, 0.0, 1.0]), 0.75)
+    Ts = make_transform(np.eye(3), np.add(T[:3, 3], shift))
+    d = 0.003
+    exact = consistency(Ts, pts, nrm, cloud, table, d)
+    surface = ModelSurface.from_arrays(pts, nrm).with_lookup()
+    assert surface.points is pts and surface.lookup is not None
+    fast = consistency(Ts, pts, nrm, cloud, table, d, surface=surface)
+    Ps = pts @ Ts[:3, :3].T + Ts[:3, 3]
+    near_d = cKDTree(Ps).query(cloud)[0]  # exact distances to the posed samples
+    band = int(np.count_nonzero(np.abs(near_d - d) <= np.sqrt(3.0) * surface.lookup.cell))
+    assert fast.ok == exact.ok
+    assert abs(fast.explained - exact.explained) <= band
+    assert abs(fast.inside + fast.below - exact.inside - exact.below) <= band
 
 
 def test_points_under_an_overhang_are_seen_obliquely_not_impossible() -> None:
