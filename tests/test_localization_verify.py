@@ -396,3 +396,28 @@ def test_distinct_placements_groups_poses_equal_up_to_a_symmetry() -> None:
     assert len(first) == 3
     for g, f in enumerate(first):
         assert f == np.flatnonzero(inverse == g)[0]
+
+
+def test_components_merge_when_one_object_could_span_them() -> None:
+    """Brute force over the point pairs: two components merge when some pair is nearer than
+    a quarter of the model's size and together they fit in 1.1 x its size; a component
+    beyond that reach, or one that would make the union too long, stays apart."""
+    from mks_sim.localization.pipeline import _merge_components
+
+    rng = np.random.default_rng(7)
+    size = 0.1
+    a = rng.uniform([0.0, 0.0, 0.0], [0.04, 0.04, 0.01], (300, 3))
+    b = rng.uniform([0.055, 0.0, 0.0], [0.08, 0.04, 0.01], (200, 3))  # 15 mm from a
+    c = rng.uniform([0.30, 0.0, 0.0], [0.34, 0.04, 0.01], (200, 3))  # far from both
+    e = rng.uniform([-0.12, 0.0, 0.0], [-0.02, 0.04, 0.01], (200, 3))  # near a, too long
+    pts = np.concatenate([a, b, c, e])
+    labels = np.repeat([0, 1, 2, 3], [300, 200, 200, 200]).astype(np.intp)
+    out = _merge_components(pts, labels, size)
+
+    def nearest_pair(p: np.ndarray, q: np.ndarray) -> float:
+        return float(np.sqrt(((p[:, None, :] - q[None]) ** 2).sum(axis=2)).min())
+
+    assert nearest_pair(a, b) < 0.25 * size and nearest_pair(a, c) > 0.25 * size
+    assert nearest_pair(a, e) < 0.25 * size
+    assert out[0] == out[300] != out[500]  # a and b merged, c apart
+    assert out[700] not in (out[0], out[500])  # e: near a, but a + b + e exceeds 1.1 x size

@@ -880,12 +880,21 @@ def _merge_components(
         return c
 
     members = {c: np.flatnonzero(labels == c) for c in ids}
-    trees = {c: cKDTree(points[members[c]], balanced_tree=False) for c in ids}  # distances only
+    lo = {c: points[members[c]].min(axis=0) for c in ids}
+    hi = {c: points[members[c]].max(axis=0) for c in ids}
+    trees: dict[int, cKDTree] = {}  # distances only, built when a pair's boxes come near
+    reach = 0.25 * model_size
     for a, b in itertools.combinations(ids, 2):
         ra, rb = root(a), root(b)
         if ra == rb:
             continue
-        d, _ = trees[a].query(points[members[b]], distance_upper_bound=0.25 * model_size)
+        # boxes farther apart than the reach: no point pair can be nearer (no tree query)
+        gap = np.maximum(np.maximum(lo[a] - hi[b], lo[b] - hi[a]), 0.0)
+        if float(np.sqrt(gap @ gap)) >= reach:
+            continue
+        if a not in trees:
+            trees[a] = cKDTree(points[members[a]], balanced_tree=False)
+        d, _ = trees[a].query(points[members[b]], distance_upper_bound=reach)
         if not np.isfinite(d).any():
             continue
         joined = np.concatenate([members[c] for c in ids if root(c) in (ra, rb)])
