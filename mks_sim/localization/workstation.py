@@ -218,7 +218,9 @@ def _resolve_model(
             entry = SphereModel(f"{spec.name}_sphere", r, 0.004)
         return str(getattr(entry, "name", spec.name)), entry, sensor, "database", entry
     if _is_freeform(spec):
-        return (*freeform_model(spec, db), spec.sensor, "database", None)
+        name, model = freeform_model(spec, db)
+        _with_lookup(model)  # the workstation's localizations only (not the bin's alternates)
+        return name, model, spec.sensor, "database", None
     entry = None
     if "rotinv" in spec.models:
         try:
@@ -259,7 +261,6 @@ def freeform_model(spec: Any, db: ModelDatabase) -> tuple[str, Any]:
     if "freeform" in spec.models:
         try:
             entry = spec.model("freeform", db=db)
-            _with_lookup(entry)
             return str(getattr(entry, "name", spec.name)), entry
         except NotFound as exc:
             log.info("object %r: %s; building the free-form model from its mesh", spec.name, exc)
@@ -268,7 +269,6 @@ def freeform_model(spec: Any, db: ModelDatabase) -> tuple[str, Any]:
         from mks_sim.localization.model import model_from_mesh
 
         hit = (spec.mesh, model_from_mesh(spec.mesh, f"{spec.name}_freeform", "freeform")[0])
-        _with_lookup(hit[1])
         _FREEFORM[id(spec.mesh)] = hit
     return f"{spec.name}_freeform", hit[1]
 
