@@ -20,7 +20,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ORDER = (
-    "spg", "localize", "localize_sim", "freeform", "env", "grasp", "objects",
+    "spg", "localize", "localize_sim", "localize_ab", "freeform", "env", "grasp", "objects",
     "objects_localization", "bin", "backends", "grasp_synthesis",
 )
 HEADER = """# Benchmark results
