@@ -74,14 +74,15 @@ def _brute(T, pts, nrm, cloud, table, d):  # noqa: ANN001, ANN202
     return explained, inside, below, penetration, loose
 
 
-@pytest.mark.parametrize(
-    "shift", [(0.0, 0.0, 0.0), (0.012, -0.004, 0.0), (0.0, 0.0, -0.006), (0.0, 0.0, 0.02)]
-)
-def test_consistency_counts_match_brute_force(shift: tuple[float, float, float]) -> None:
-    rng = np.random.default_rng(4)
-    pts, nrm = sample_surface(box_mesh(0.05), 1500, rng=rng)
+def _cube_scene(
+    seed: int, samples: int, shift: tuple[float, float, float]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, Plane, np.ndarray]:
+    """A 5 cm cube's samples and normals, the cloud a sensor saw of it resting on the table
+    (its top and sides, a noisy table around and under it, a few strays), the table and the
+    cube's pose moved by ``shift``."""
+    rng = np.random.default_rng(seed)
+    pts, nrm = sample_surface(box_mesh(0.05), samples, rng=rng)
     T = make_transform(np.eye(3), [0.0, 0.0, 0.775])
-    # the cube's top and sides as sensed, a noisy table around and under it, a few strays
     P = pts @ T[:3, :3].T + T[:3, 3]
     vis = (nrm[:, 2] > 0.5) | (nrm[:, 0] > 0.5) | (nrm[:, 1] < -0.5)
     g = rng.uniform(-0.06, 0.06, size=(4000, 2))
@@ -89,7 +90,14 @@ def test_consistency_counts_match_brute_force(shift: tuple[float, float, float])
     strays = rng.uniform([-0.03, -0.03, 0.74], [0.03, 0.03, 0.81], size=(200, 3))
     cloud = np.concatenate([P[vis] + rng.normal(0, 0.0005, (int(vis.sum()), 3)), table_pts, strays])
     table = Plane(np.array([0.0, 0.0, 1.0]), 0.75)
-    Ts = make_transform(np.eye(3), np.add(T[:3, 3], shift))
+    return pts, nrm, cloud, table, make_transform(np.eye(3), np.add(T[:3, 3], shift))
+
+
+@pytest.mark.parametrize(
+    "shift", [(0.0, 0.0, 0.0), (0.012, -0.004, 0.0), (0.0, 0.0, -0.006), (0.0, 0.0, 0.02)]
+)
+def test_consistency_counts_match_brute_force(shift: tuple[float, float, float]) -> None:
+    pts, nrm, cloud, table, Ts = _cube_scene(4, 1500, shift)
     d = 0.003
     got = consistency(Ts, pts, nrm, cloud, table, d)
     exp_e, exp_i, exp_b, exp_p, exp_u = _brute(Ts, pts, nrm, cloud, table, d)
@@ -111,17 +119,7 @@ def test_consistency_with_the_lookup_grid_moves_only_points_near_the_distance(
     """With the surface's nearest-sample grid the verdict is the tree's, and a count moves
     only for a point whose distance to the posed samples is within a grid cell's diagonal
     of the explained distance ``d``."""
-    rng = np.random.default_rng(5)
-    pts, nrm = sample_surface(box_mesh(0.05), 8000, rng=rng)
-    T = make_transform(np.eye(3), [0.0, 0.0, 0.775])
-    P = pts @ T[:3, :3].T + T[:3, 3]
-    vis = (nrm[:, 2] > 0.5) | (nrm[:, 0] > 0.5) | (nrm[:, 1] < -0.5)
-    g = rng.uniform(-0.06, 0.06, size=(4000, 2))
-    table_pts = np.c_[g, 0.75 + rng.normal(0, 0.0005, len(g))]
-    strays = rng.uniform([-0.03, -0.03, 0.74], [0.03, 0.03, 0.81], size=(200, 3))
-    cloud = np.concatenate([P[vis] + rng.normal(0, 0.0005, (int(vis.sum()), 3)), table_pts, strays])
-    table = Plane(np.array([0.0, 0.0, 1.0]), 0.75)
-    Ts = make_transform(np.eye(3), np.add(T[:3, 3], shift))
+    pts, nrm, cloud, table, Ts = _cube_scene(5, 8000, shift)
     d = 0.003
     exact = consistency(Ts, pts, nrm, cloud, table, d)
     surface = ModelSurface.from_arrays(pts, nrm).with_lookup()
