@@ -378,3 +378,13 @@ print(len(seg.planes))
     )
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split()[-1] == "2"
+
+
+def test_median_by_one_partition_is_numpys_median() -> None:
+    """regions._median gives np.median's value to the bit, odd and even lengths."""
+    from mks_sim.lowlevel.regions import _median
+
+    rng = np.random.default_rng(8)
+    for n in (1, 2, 3, 10, 11, 1000, 1001):
+        x = rng.normal(size=n)
+        assert _median(x) == float(np.median(x))
