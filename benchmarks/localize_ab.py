@@ -78,6 +78,12 @@ def _run_tree(tree: Path, objects: list[str], seeds: list[int], reps: int) -> di
     return result
 
 
+def _bad_input(message: str) -> SystemExit:
+    """A one-line error for bad input (exit 2)."""
+    print(f"localize_ab: {message}", file=sys.stderr)
+    return SystemExit(2)
+
+
 def _seeds(text: str) -> list[int]:
     try:
         if "-" in text and "," not in text:
@@ -85,14 +91,15 @@ def _seeds(text: str) -> list[int]:
             return list(range(a, b + 1))
         return [int(x) for x in text.split(",")]
     except ValueError:
-        raise SystemExit(f"localize_ab: --seeds: expected A-B or a,b,c, got {text!r}") from None
+        raise _bad_input(f"--seeds: expected A-B or a,b,c, got {text!r}") from None
 
 
 def _checkout(rev: str, where: Path) -> None:
     proc = subprocess.run(["git", "worktree", "add", "--detach", str(where), rev],
                           cwd=ROOT, capture_output=True, text=True)  # fmt: skip
     if proc.returncode != 0:
-        raise SystemExit(f"localize_ab: cannot check out {rev!r}: {proc.stderr.strip()}")
+        why = (proc.stderr.strip().splitlines() or ["git worktree add failed"])[-1]
+        raise _bad_input(f"cannot check out {rev!r}: {why}")
 
 
 def main(argv: list[str] | None = None) -> int:

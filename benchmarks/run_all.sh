@@ -4,6 +4,7 @@
 #   benchmarks/run_all.sh            # the sizes the issues ask for (about 3 hours on 2 cores)
 #   BENCH_PROFILE=short benchmarks/run_all.sh   # fewer seeds/trials (about 1 hour), same scripts
 #   BENCH_ONLY="localize_sim env" benchmarks/run_all.sh   # a subset, by results-file name
+#   BENCH_AB_BASE=e054b11 BENCH_ONLY=localize_ab benchmarks/run_all.sh   # old vs new, alternated
 #
 # Each script writes benchmarks/results/<name>.md with its provenance lines (commit, date,
 # load average before that script started, command), so a reader sees what a short profile
@@ -14,7 +15,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}
 PROFILE=${BENCH_PROFILE:-full}
-ONLY=${BENCH_ONLY:-spg localize localize_sim freeform env grasp objects objects_localization bin backends grasp_synthesis}
+ONLY=${BENCH_ONLY:-spg localize localize_sim localize_ab freeform env grasp objects objects_localization bin backends grasp_synthesis}
 R=benchmarks/results
 
 load=$(cut -d' ' -f1 /proc/loadavg)
@@ -63,6 +64,10 @@ run() {  # name, command...
 run spg $PY benchmarks/spg.py --large
 run localize $PY benchmarks/localize.py --trials 4
 run localize_sim $PY benchmarks/localize_sim.py --n $SIM_N --no-progress --out $R/localize_sim.md
+# the old and the new code alternated (needs a base commit: BENCH_AB_BASE=<rev>)
+if [ -n "${BENCH_AB_BASE:-}" ]; then
+  run localize_ab $PY benchmarks/localize_ab.py --base "$BENCH_AB_BASE"
+fi
 run freeform $PY benchmarks/freeform.py --trials $FF_TRIALS --cv-contrib venv  # the bench extra's cv2 is the contrib build
 run env $PY benchmarks/env.py
 run grasp $PY benchmarks/grasp.py --episodes $GRASP_EP --env-episodes $ENV_EP --workers 2
