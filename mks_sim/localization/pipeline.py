@@ -880,8 +880,9 @@ def _merge_components(
         return c
 
     members = {c: np.flatnonzero(labels == c) for c in ids}
-    lo = {c: points[members[c]].min(axis=0) for c in ids}
-    hi = {c: points[members[c]].max(axis=0) for c in ids}
+    own = {c: points[members[c]] for c in ids}
+    lo = {c: own[c].min(axis=0) for c in ids}
+    hi = {c: own[c].max(axis=0) for c in ids}
     trees: dict[int, cKDTree] = {}  # distances only, built when a pair's boxes come near
     reach = 0.25 * model_size
     for a, b in itertools.combinations(ids, 2):
@@ -893,8 +894,8 @@ def _merge_components(
         if float(np.sqrt(gap @ gap)) >= reach:
             continue
         if a not in trees:
-            trees[a] = cKDTree(points[members[a]], balanced_tree=False)
-        d, _ = trees[a].query(points[members[b]], distance_upper_bound=reach)
+            trees[a] = cKDTree(own[a], balanced_tree=False)
+        d, _ = trees[a].query(own[b], distance_upper_bound=reach)
         if not np.isfinite(d).any():
             continue
         joined = np.concatenate([members[c] for c in ids if root(c) in (ra, rb)])
