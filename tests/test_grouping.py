@@ -344,6 +344,43 @@ def test_compiled_ring_moments_match_sparse_ring_matrix() -> None:
         assert np.all(np.abs(np.einsum("ij,ij->i", nrm, want_n)) > 1.0 - 1e-9)
 
 
+def test_compiled_ring_moments_do_not_depend_on_the_threads() -> None:
+    """The parallel kernel gives the same moments, to the bit, on one thread and on all,
+    and on any number of chunks (each point's ring and sums are its own arithmetic)."""
+    import numba
+
+    from mks_sim.lowlevel import _gridknn
+    from mks_sim.lowlevel.normals import symmetric_adjacency
+
+    if not _gridknn.available():
+        pytest.skip("numba not importable")
+    from mks_sim.lowlevel._regions_kernels import ring_moments
+
+    rng = np.random.default_rng(8)
+    pts, _ = _cube(3000, 0.02, rng)
+    sym = symmetric_adjacency(build_graph(pts, m=8))
+    args = (sym.indptr.astype(np.int64), sym.indices.astype(np.int64), pts - pts.mean(axis=0))
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = ring_moments(*args, 2, 1)
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        runs = [ring_moments(*args, 2, t) for t in (1, 2, 3, 8)]
+    finally:
+        numba.set_num_threads(before)
+    assert all(np.array_equal(r, one) for r in runs)
+    # and the moments are those of the two-ring neighbourhood, brute force for a few points
+    for i in (0, 1234, 2999):
+        ring1 = set(sym.indices[sym.indptr[i] : sym.indptr[i + 1]]) | {i}
+        ring2 = set(ring1)
+        for q in ring1:
+            ring2 |= set(sym.indices[sym.indptr[q] : sym.indptr[q + 1]])
+        nb = args[2][sorted(ring2)]
+        cov = np.cov(nb.T, bias=True)
+        want = cov[np.triu_indices(3)]
+        assert np.allclose(one[i], want, atol=1e-12)
+
+
 def test_warm_up_kernels_says_whether_the_compiled_paths_run() -> None:
     from mks_sim.lowlevel import _gridknn
     from mks_sim.lowlevel.regions import warm_up_kernels

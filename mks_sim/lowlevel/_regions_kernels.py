@@ -126,40 +126,52 @@ def grow_regions(
     return labels, rid
 
 
-@nb.njit(cache=True)
+#: Fewest points per work item of :func:`ring_moments`; there are at most 4 items per
+#: thread, each with its own (N,) scratch arrays.
+_RING_CHUNK = 512
+
+
+@nb.njit(cache=True, parallel=True)
 def ring_moments(
-    indptr: np.ndarray, indices: np.ndarray, c: np.ndarray, rings: int
+    indptr: np.ndarray, indices: np.ndarray, c: np.ndarray, rings: int, threads: int = 1
 ) -> np.ndarray:  # pragma: no cover - compiled
     """(N, 6) covariances (xx xy xz yy yz zz) of every point's neighbourhood of ``rings`` hops
     over the CSR graph (``indptr``, ``indices``; the point itself included), from the
-    (centred) points ``c``; the compiled twin of ``normals._pca_sparse(_ring_matrix(...))``."""
+    (centred) points ``c``; the compiled twin of ``normals._pca_sparse(_ring_matrix(...))``.
+
+    Up to 4 x ``threads`` chunks of points run in parallel (as the SPG's grid kernel does);
+    each point's breadth-first ring and sums are the same arithmetic whichever thread runs
+    it, so the result does not depend on the number of threads."""
     n = c.shape[0]
     out = np.empty((n, 6))
-    stamp = np.full(n, -1, np.int64)
-    ring = np.empty(n, np.int64)
-    for i in range(n):
-        stamp[i] = i
-        ring[0] = i
-        lo = 0
-        hi = 1
-        for _ in range(rings):
-            end = hi
-            for k in range(lo, end):
-                p = ring[k]
-                for e in range(indptr[p], indptr[p + 1]):
-                    q = indices[e]
-                    if stamp[q] != i:
-                        stamp[q] = i
-                        ring[hi] = q
-                        hi += 1
-            lo = end
-        _, _, _, a00, a01, a02, a11, a12, a22 = _scatter(c, ring, hi)
-        out[i, 0] = a00 / hi
-        out[i, 1] = a01 / hi
-        out[i, 2] = a02 / hi
-        out[i, 3] = a11 / hi
-        out[i, 4] = a12 / hi
-        out[i, 5] = a22 / hi
+    nchunk = max(1, min((n + _RING_CHUNK - 1) // _RING_CHUNK, 4 * max(threads, 1)))
+    size = (n + nchunk - 1) // nchunk
+    for ch in nb.prange(nchunk):
+        stamp = np.full(n, -1, np.int64)
+        ring = np.empty(n, np.int64)
+        for i in range(ch * size, min(n, (ch + 1) * size)):
+            stamp[i] = i
+            ring[0] = i
+            lo = 0
+            hi = 1
+            for _ in range(rings):
+                end = hi
+                for k in range(lo, end):
+                    p = ring[k]
+                    for e in range(indptr[p], indptr[p + 1]):
+                        q = indices[e]
+                        if stamp[q] != i:
+                            stamp[q] = i
+                            ring[hi] = q
+                            hi += 1
+                lo = end
+            _, _, _, a00, a01, a02, a11, a12, a22 = _scatter(c, ring, hi)
+            out[i, 0] = a00 / hi
+            out[i, 1] = a01 / hi
+            out[i, 2] = a02 / hi
+            out[i, 3] = a11 / hi
+            out[i, 4] = a12 / hi
+            out[i, 5] = a22 / hi
     return out
 
 

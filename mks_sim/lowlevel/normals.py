@@ -196,13 +196,16 @@ def _ring_cov(pts: FloatArray, graph: GraphLike, rings: int) -> FloatArray:
 
     if rings < 2 or len(pts) < _COMPILED_MIN_POINTS or not _gridknn.available():
         return _sparse_cov(pts, _ring_matrix(graph, rings))
+    import numba
+
     from mks_sim.lowlevel._regions_kernels import ring_moments
 
     sym = symmetric_adjacency(graph)
     c = np.ascontiguousarray(pts - pts.mean(axis=0), dtype=np.float64)
     out: FloatArray = ring_moments(
-        sym.indptr.astype(np.int64), sym.indices.astype(np.int64), c, rings
-    )
+        sym.indptr.astype(np.int64), sym.indices.astype(np.int64), c, rings,
+        numba.get_num_threads(),
+    )  # fmt: skip
     return out
 
 
