@@ -316,13 +316,20 @@ def rotation_about(axis: FloatArray, angle: float) -> FloatArray:
 
 
 def score_spheres(
-    objects: FloatArray, seeds: list[FloatArray], radius: float, d: float
+    objects: FloatArray,
+    seeds: list[FloatArray],
+    radius: float,
+    d: float,
+    *,
+    tree: cKDTree | None = None,
 ) -> list[tuple[float, PoseHypothesis, dict[str, Any]]]:
-    """Refine sphere centre seeds (fixed radius) and check each: cap coverage, residual."""
+    """Refine sphere centre seeds (fixed radius) and check each: cap coverage, residual.
+    ``tree``: the k-d tree of ``objects`` when the caller has it (default: built here)."""
     out: list[tuple[float, PoseHypothesis, dict[str, Any]]] = []
     if len(objects) < 20:
         return out
-    tree = cKDTree(objects)
+    if tree is None:
+        tree = cKDTree(objects)
     cap = fibonacci_sphere(400)
     cap = cap[cap[:, 2] > 0.3]
     for c0 in seeds:

@@ -978,7 +978,10 @@ def _set_aside_spheres(
     for radius in _known_sphere_radii():
         sub = np.flatnonzero(keep)
         seeds = sphere_centre_hough(objects[sub], radius, normals[sub])
-        found = [h for _, h, chk in score_spheres(objects[sub], seeds, radius, d0) if chk["ok"]]
+        tree = rep.objects_tree if len(sub) == len(objects) else None
+        found = [
+            h for _, h, chk in score_spheres(objects[sub], seeds, radius, d0, tree=tree) if chk["ok"]
+        ]  # fmt: skip
         for h in found:
             shell = np.abs(np.linalg.norm(objects - h.matrix[:3, 3], axis=1) - radius)
             keep &= shell > d0 + 0.001
@@ -1047,7 +1050,8 @@ def localize_polyhedral(
     timing["verification"] = 0.0
     surface_pts = np.asarray(model.surface_points(), dtype=np.float64)
     surface_nrm = np.asarray(model.surface_normals(), dtype=np.float64)
-    objects_tree = cKDTree(objects)  # the coverage tests' (once, not per test)
+    # the coverage tests' (once, not per test; the representation's when nothing was set aside)
+    objects_tree = rep.objects_tree if bool(keep.all()) else cKDTree(objects)
     checked: dict[int, tuple[PoseHypothesis, Consistency]] = {}
 
     def check(h: PoseHypothesis) -> Consistency:
@@ -1131,7 +1135,9 @@ def localize_polyhedral(
         extra["rotinv_maxima"] = len(coarse)
         timing["hypotheses"] += time.perf_counter() - t
         t = time.perf_counter()
-        refined = _refine_near(_best_coarse(coarse, model, objects, d, 2), model, objects, d, rng)
+        refined = _refine_near(
+            _best_coarse(coarse, model, objects_tree, d, 2), model, objects, d, rng
+        )
         extra["rotinv_refined"] = len(refined)
         # the five best of all (the checked five and the refined ones), checked once each
         checks += [check(h) for h in refined]
@@ -1392,21 +1398,21 @@ def _top(candidates: list[PoseHypothesis], n: int) -> list[int]:
 
 
 def _best_coarse(
-    hyps: list[PoseHypothesis], model: Any, objects: FloatArray, d: float, n: int
+    hyps: list[PoseHypothesis], model: Any, objects_tree: cKDTree, d: float, n: int
 ) -> list[PoseHypothesis]:
-    """The ``n`` coarse poses explaining the most object points (one batch query)."""
+    """The ``n`` coarse poses explaining the most object points (one batch query on the
+    object points' tree)."""
     from mks_sim.localization.verify import batch_explained
 
-    if len(hyps) <= n or len(objects) == 0:
+    if len(hyps) <= n or objects_tree.n == 0:
         return hyps
     good = [h for h in hyps if np.asarray(h.matrix).shape == (4, 4)]
     if len(good) <= n:
         return good
     # fraction of the model samples near object points (the scene holds other objects too)
-    tree = cKDTree(objects)
     pts = np.asarray(model.surface_points(), dtype=np.float64)
     pts = pts[:: max(1, len(pts) // 300)]
-    score = batch_explained(pts, np.stack([h.matrix for h in good]), tree, 2 * d)
+    score = batch_explained(pts, np.stack([h.matrix for h in good]), objects_tree, 2 * d)
     return [good[i] for i in np.argsort(-score, kind="stable")[:n]]
 
 
@@ -1616,7 +1622,7 @@ def localize_sphere(
     extra["candidates"] = len(seeds)
 
     t = time.perf_counter()
-    scored = score_spheres(objects, seeds, radius, d)
+    scored = score_spheres(objects, seeds, radius, d, tree=rep.objects_tree)
     scored.sort(key=lambda x: (not x[2]["ok"], -x[0], x[1].rmse))
     extra["inlier_distance_m"] = d
     extra["checks"] = [chk for _, _, chk in scored[:5]]

@@ -141,7 +141,7 @@ class Representation:
         points: the points the representation is built on (``raw`` voxel-averaged when
             :attr:`voxel` > 0).
         tree, spacing, noise, voxel, table, table_threshold, object_indices, objects,
-        graph, spg_adjacency, labels, normals, segmentation.
+        objects_tree, graph, spg_adjacency, labels, normals, segmentation.
     """
 
     def __init__(
@@ -279,6 +279,12 @@ class Representation:
     def objects(self) -> FloatArray:
         """(K, 3) the object points (off the table)."""
         return self.points[self.object_indices]
+
+    @cached_property
+    def objects_tree(self) -> cKDTree:
+        """k-d tree of :attr:`objects` (scipy's default build: the sphere fits' and the
+        coverage tests' tree, built once for both)."""
+        return cKDTree(self.objects)
 
     @cached_property
     def gap(self) -> float:
