@@ -262,12 +262,31 @@ def localize_all(
         if T.shape != (4, 4) or not np.all(np.isfinite(T)) or len(found) >= max_instances:
             continue
         h = PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3])
-        inst = _check(
-            h, cloud, tree, np.flatnonzero(~claimed), claimed, found, surface, surf_pts,
-            surf_nrm, table, d, centre, radius, size, same_fraction, min_new_fraction,
-            expected, 0, rng, verify_hypotheses,
-        )  # fmt: skip
-        if inst is not None and inst.score >= min_score:
+        free = np.flatnonzero(~claimed)
+
+        def checked(h: PoseHypothesis, free: NDArray[np.intp] = free) -> Instance | None:
+            inst = _check(
+                h, cloud, tree, free, claimed, found, surface, surf_pts, surf_nrm, table, d,
+                centre, radius, size, same_fraction, min_new_fraction, expected, 0, rng,
+                verify_hypotheses,
+            )  # fmt: skip
+            return inst if inst is not None and inst.score >= min_score else None
+
+        inst = checked(h)
+        if inst is not None:
+            if inst.check.inside > 0:
+                # seen through: its near-twins compete, as for a voted pose seen through
+                # (INSIDE_WEIGHT). The earlier view may have been too sparse to tell them
+                # apart (range finder failed, tuning bins 14, 50, 52, 58: a part reported
+                # turned 180 deg explained 951-1903 points and saw 1-16 through itself, its
+                # twin -- the truth -- 1086-1943 and none)
+                for W in twins:
+                    Tw = inst.matrix @ W
+                    twin = checked(PoseHypothesis(Tw, Tw[:3, :3] @ centre + Tw[:3, 3]))
+                    if twin is not None and _merit(twin, INSIDE_WEIGHT) > _merit(
+                        inst, INSIDE_WEIGHT
+                    ):
+                        inst = twin
             found.append(inst)
             claimed[inst.points] = True
     timing["verification"] += time.perf_counter() - t
