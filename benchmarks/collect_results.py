@@ -21,7 +21,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ORDER = (
     "spg", "localize", "localize_sim", "localize_ab", "freeform", "env", "grasp", "objects",
-    "objects_localization", "bin", "backends", "grasp_synthesis",
+    "objects_localization", "bin", "bin_localization", "backends", "grasp_synthesis",
 )
 HEADER = """# Benchmark results
 
