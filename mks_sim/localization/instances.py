@@ -257,22 +257,25 @@ def localize_all(
     found: list[Instance] = []
     passes = 0
     t = time.perf_counter()
+
+    def as_instance(
+        h: PoseHypothesis, free: NDArray[np.intp], use_table: Plane | None, pass_index: int
+    ) -> Instance | None:
+        """``h`` polished and checked as a new instance (:func:`_check`) when it passes and
+        scores at least ``min_score``, else None."""
+        inst = _check(
+            h, cloud, tree, free, claimed, found, surface, surf_pts, surf_nrm, use_table, d,
+            centre, radius, size, same_fraction, min_new_fraction, expected, pass_index, rng,
+            verify_hypotheses,
+        )  # fmt: skip
+        return inst if inst is not None and inst.score >= min_score else None
+
     for T in prior:
         T = np.asarray(T, dtype=np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)) or len(found) >= max_instances:
             continue
-        h = PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3])
         free = np.flatnonzero(~claimed)
-
-        def checked(h: PoseHypothesis, free: NDArray[np.intp] = free) -> Instance | None:
-            inst = _check(
-                h, cloud, tree, free, claimed, found, surface, surf_pts, surf_nrm, table, d,
-                centre, radius, size, same_fraction, min_new_fraction, expected, 0, rng,
-                verify_hypotheses,
-            )  # fmt: skip
-            return inst if inst is not None and inst.score >= min_score else None
-
-        inst = checked(h)
+        inst = as_instance(PoseHypothesis(T, T[:3, :3] @ centre + T[:3, 3]), free, table, 0)
         if inst is not None:
             if inst.check.inside > 0:
                 # seen through: its near-twins compete, as for a voted pose seen through
@@ -282,7 +285,9 @@ def localize_all(
                 # twin -- the truth -- 1086-1943 and none)
                 for W in twins:
                     Tw = inst.matrix @ W
-                    twin = checked(PoseHypothesis(Tw, Tw[:3, :3] @ centre + Tw[:3, 3]))
+                    twin = as_instance(
+                        PoseHypothesis(Tw, Tw[:3, :3] @ centre + Tw[:3, 3]), free, table, 0
+                    )
                     if twin is not None and _merit(twin, INSIDE_WEIGHT) > _merit(
                         inst, INSIDE_WEIGHT
                     ):
@@ -322,12 +327,8 @@ def localize_all(
                 """``h`` checked as an instance when it passes and explains more points than
                 ``best`` (a part and its near-twin flipped pose both fit; the right one
                 explains more), else ``best``."""
-                inst = _check(
-                    h, cloud, tree, free, claimed, found, surface, surf_pts, surf_nrm,
-                    use_table, d, centre, radius, size, same_fraction, min_new_fraction,
-                    expected, pass_index, rng, verify_hypotheses,
-                )  # fmt: skip
-                if inst is None or inst.score < min_score:
+                inst = as_instance(h, free, use_table, pass_index)
+                if inst is None:
                     return best
                 return inst if best is None or _merit(inst, weigh) > _merit(best, weigh) else best
 
