@@ -11,7 +11,8 @@ Over ``--n`` seeds (default the reporting seeds from 3000; the bin room tuned on
   camera, to see what active sensing adds), and range finder failed (the wrist camera's views
   alone); views per localization;
 - clearing: ``mks-sim grasp --task clear_bin`` (``run_clear_bin``): parts picked into the
-  output box over parts present, failures by reason, time per pick (sense + localize + plan +
+  output box over parts present (the table around the bin searched when the bin is done,
+  as the task does by default), failures by reason, time per pick (sense + localize + plan +
   motion) and of its perception part, views per pick (2+ = the wrist camera took another
   look); range finder healthy and failed.
 
@@ -145,8 +146,9 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
     reasons: Counter[str] = Counter()
     pick_t, perc_t, stopped = [], [], Counter()
     views: list[int] = []
-    hung = high = 0
+    hung = high = from_table = 0
     left: Counter[str] = Counter()
+    table_stopped: Counter[str] = Counter()
     for r in recs:
         if "error" in r:
             reasons[f"raised: {r['error'][:60]}"] += 1
@@ -155,6 +157,8 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
         picked += r["picked"]
         present += r["present"]
         stopped[r["stopped"]] += 1
+        if r.get("table_stopped"):
+            table_stopped[r["table_stopped"]] += 1
         # in the box by IN_BOX_ABOVE_RIM_M, but above the 30 mm box's mark (80 mm over the table)
         high += sum(z > 0.08 for z in r.get("in_box_heights_m", []))
         left.update(r.get("left", {}))
@@ -162,6 +166,7 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
             views.append(int(p.get("views", 1)))
             hung += p.get("hung_on", 0) > 0
             if p["success"]:
+                from_table += p.get("region") == "table"
                 pick_t.append(p["time_s"])
                 perc_t.append(p["perception_s"])
             else:
@@ -170,6 +175,9 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
         f"| **parts picked** | {picked} / {present} | "
         + (f"{100 * picked / present:.1f} % |" if present else "- |")
     ]
+    if table_stopped:
+        rows.append(f"| of which picked from the table around the bin | {from_table} | "
+                    "lifted out with another or dropped on the way |")  # fmt: skip
     if pick_t:
         rows.append(
             f"| time per successful pick (median) | {np.median(pick_t):.1f} s | perception "
@@ -189,6 +197,8 @@ def clearing_rows(recs: list[dict[str, Any]]) -> list[str]:
         rows.append(f"| failed pick: {why} | {n} | |")
     for why, n in stopped.most_common():
         rows.append(f"| bins stopped: {why} | {n} | |")
+    for why, n in table_stopped.most_common():
+        rows.append(f"| then the table searched, stopped: {why} | {n} | |")
     return rows
 
 

@@ -37,6 +37,8 @@ class StubPicker:
         self.perception_s = self.last_tilt_deg = 0.0
         self.last_passengers = self.last_hung_on = 0
         self.views, self.faults_seen, self.obj = 1, {}, None
+        self.faults: dict[str, str] = {}
+        self.region = "bin"
         self.tried: list[float] = []  # what a subclass records of each pick it tries
 
     def sense(self) -> list[Any]:
@@ -46,6 +48,11 @@ class StubPicker:
         import numpy as np
 
         return [] if self.in_box else [SimpleNamespace(matrix=np.eye(4), score=1.0)]
+
+    def to_table(self) -> None:
+        """The table around the bin holds nothing (whatever a subclass senses in the bin)."""
+        self.region = "table"
+        self.sense = self.unsure_left = lambda *a: []  # type: ignore[method-assign]
 
     def unsure_left(self, avoid: Any = ()) -> list[Any]:
         """No instance is unsure."""

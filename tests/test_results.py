@@ -51,3 +51,26 @@ def test_bin_clearing_counts_a_bin_that_raised_as_nothing_picked() -> None:
     rows = "\n".join(mod.clearing_rows([ok, raised]))
     assert "| **parts picked** | 3 / 12 | 25.0 % |" in rows
     assert "raised: FatalError: out of memory" in rows
+
+
+def test_bin_clearing_counts_the_parts_picked_from_the_table() -> None:
+    """Picks from the table around the bin count among the parts picked and on a row of
+    their own; a bin whose table was searched says how that search ended."""
+    sys.path.insert(0, str(BENCH))
+    spec = importlib.util.spec_from_file_location("bench_bin", BENCH / "bin.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    pick = {"success": True, "time_s": 9.0, "perception_s": 1.0, "views": 1}
+    recs = [
+        {"seed": 1, "picked": 2, "present": 2, "stopped": "nothing found",
+         "table_stopped": "nothing found",
+         "picks": [{**pick, "region": "bin"}, {**pick, "region": "table"}]},
+        {"seed": 2, "picked": 1, "present": 2, "stopped": "nothing found",
+         "table_stopped": None, "picks": [{**pick, "region": "bin"}]},
+    ]  # fmt: skip
+    rows = "\n".join(mod.clearing_rows(recs))
+    assert "| **parts picked** | 3 / 4 | 75.0 % |" in rows
+    assert "| of which picked from the table around the bin | 1 |" in rows
+    assert "| then the table searched, stopped: nothing found | 1 | |" in rows
+    assert "| bins stopped: nothing found | 2 | |" in rows

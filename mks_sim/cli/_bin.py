@@ -111,6 +111,11 @@ def add_task_argument(parser: argparse.ArgumentParser) -> None:
         "--budget", type=int, default=None, metavar="N",
         help="--task clear_bin: picks at most (default 2 x parts + 2)",
     )  # fmt: skip
+    parser.add_argument(
+        "--bin-only", action="store_true",
+        help="--task clear_bin: when the bin is done, do not pick the parts found on the "
+        "table around it (lifted out with another or dropped on the way)",
+    )  # fmt: skip
     _add_one_view(parser)
 
 
@@ -134,6 +139,7 @@ def run_clear_bin_command(args: argparse.Namespace) -> int:
         budget=args.budget,
         active=not args.one_view,
         models=tuple(args.models),
+        table=not args.bin_only,
     )
     if args.json:
         print(json.dumps(rec, allow_nan=False))
@@ -148,11 +154,13 @@ def format_clear_text(rec: dict[str, Any]) -> str:
         f"clear_bin (seed {rec['seed']}): picked {rec['picked']} of {rec['present']} "
         f"({100 * rec['cleared_fraction']:.0f} %) in {rec['time_s']:.1f} s; stopped: "
         f"{rec['stopped']}"
+        + (f"; the table then: {rec['table_stopped']}" if rec.get("table_stopped") else "")
     ]
     for k, p in enumerate(rec["picks"]):
         what = "ok" if p["success"] else f"FAILED: {p['failure']}"
+        where = " on the table" if p.get("region") == "table" else ""
         lines.append(
-            f"  pick {k + 1}: instance {p['instance']} (score {p['score']:.2f}"
+            f"  pick {k + 1}{where}: instance {p['instance']} (score {p['score']:.2f}"
             f"{', unsure pose' if p.get('unsure') else ''}) {what}; "
             f"{p['time_s']:.1f} s ({p['perception_s']:.1f} s perception, {p['views']} view(s))"
         )

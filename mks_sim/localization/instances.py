@@ -711,6 +711,7 @@ def localize_instances(
     object_name: str,
     *,
     roi: tuple[ArrayLike, ArrayLike] | None = None,
+    exclude: Sequence[tuple[ArrayLike, ArrayLike]] = (),
     graph: Any = None,
     rng: np.random.Generator | None = None,
     models: tuple[str, ...] = (),
@@ -728,6 +729,9 @@ def localize_instances(
         object_name: a database object (its mesh is the model).
         roi: (lo, hi) world-frame corners of the region of interest (e.g. a bin's inside:
             a workcell calibration, like the table height); points outside are ignored.
+        exclude: (lo, hi) world xy corners ((2,) each) of regions left out of ``roi``,
+            from the table up (e.g. a bin and a box, when the table around them is
+            searched): points above them are ignored.
         graph: the logical sensors (default ``SensorGraph.from_dir()``).
         rng: generator (default seeded 0).
         models: extra model folders.
@@ -764,6 +768,9 @@ def localize_instances(
     if roi is not None:
         lo, hi = (np.asarray(v, dtype=np.float64).reshape(3) for v in roi)
         pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
+    for lo_xy, hi_xy in exclude:
+        lo2, hi2 = (np.asarray(v, dtype=np.float64).reshape(2) for v in (lo_xy, hi_xy))
+        pts = pts[~np.all((pts[:, :2] >= lo2) & (pts[:, :2] <= hi2), axis=1)]
     t_sense = time.perf_counter() - t0
     if len(pts) < 50:
         raise SensorFailure(sensor, f"expected >= 50 points in the region, got {len(pts)}")

@@ -122,6 +122,63 @@ def bin_roi(world: World) -> tuple[np.ndarray, np.ndarray]:
     return np.array([*(lo + m), z - 0.02]), np.array([*(hi - m), z + ROI_HEIGHT_M])
 
 
+#: The table search (:func:`table_roi`) leaves out the bin, its walls and the box with this
+#: margin around their outer faces.
+SPILL_MARGIN_M = 0.005
+
+
+def _static_boxes_xy(world: World, prefix: str) -> list[tuple[np.ndarray, np.ndarray]]:
+    """World xy corners ((2,) lo, (2,) hi) of the static box geoms whose names start with
+    ``prefix`` (``fixture_``: the scene's ``[[fixture]]`` boxes, the bin's walls;
+    ``output_box_wall_``: the output box's walls) -- scene data, not ground truth."""
+    m, d = world.model, world.data
+    out = []
+    for g in range(m.ngeom):
+        if (mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith(prefix):
+            half = np.abs(d.geom_xmat[g].reshape(3, 3)[:2]) @ m.geom_size[g]
+            out.append((d.geom_xpos[g][:2] - half, d.geom_xpos[g][:2] + half))
+    return out
+
+
+def _outer_xy(world: World, prefix: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """The xy bounding box of :func:`_static_boxes_xy` (None: no such geom)."""
+    boxes = _static_boxes_xy(world, prefix)
+    if not boxes:
+        return None
+    return np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
+
+
+def table_roi(
+    world: World,
+) -> tuple[tuple[np.ndarray, np.ndarray], list[tuple[np.ndarray, np.ndarray]]]:
+    """((lo, hi) world corners of the table top up to ``ROI_HEIGHT_M`` above it, [(lo, hi)
+    xy regions left out]): where parts that ended outside the bin are searched
+    (:meth:`BinPicker.to_table`). Left out, :data:`SPILL_MARGIN_M` beyond their outer faces:
+    the bin (its region and the fixtures, its walls) and the output box with its walls.
+    Scene data (the table's and fixtures' geoms), not ground truth."""
+    from mks_sim.sim import names
+
+    m, d = world.model, world.data
+    g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, names.TABLE_TOP_GEOM)
+    half = np.abs(d.geom_xmat[g].reshape(3, 3)[:2]) @ m.geom_size[g]
+    z = world.scene.support_z
+    roi = (
+        np.array([*(d.geom_xpos[g][:2] - half), z - 0.02]),
+        np.array([*(d.geom_xpos[g][:2] + half), z + ROI_HEIGHT_M]),
+    )
+    lo, hi = bin_walls_xy(world)
+    excluded = [(lo, hi)]
+    for prefix in ("fixture_", "output_box_wall_"):
+        outer = _outer_xy(world, prefix)
+        if outer is not None:
+            excluded.append(outer)
+    box = world.scene.output_box
+    if box is not None:  # its inside, should it have no walls of its own
+        c, h = np.asarray(box.center_xy), np.asarray(box.half_xy)
+        excluded.append((c - h, c + h))
+    return roi, [(a - SPILL_MARGIN_M, b + SPILL_MARGIN_M) for a, b in excluded]
+
+
 def visible_fraction(mesh_points: np.ndarray, T: np.ndarray, sensed: np.ndarray) -> float:
     """Fraction of a posed model's surface samples within ``VISIBLE_DISTANCE_M`` of a sensed
     point (evaluation: ``T`` is the true pose)."""
@@ -383,6 +440,8 @@ class Pick:
             (:meth:`BinPicker.unsure_left`).
         hung_on: times the hand, opened over the box, still felt the part on a pad and was
             lowered to set it down (:func:`_set_down_hung`; 0: it fell free).
+        region: where the part was searched: ``"bin"``, or ``"table"`` (around the bin,
+            :meth:`BinPicker.to_table`).
     """
 
     instance: int
@@ -398,6 +457,7 @@ class Pick:
     passenger_points: int = 0
     unsure: bool = False
     hung_on: int = 0
+    region: str = "bin"
 
     def to_json(self) -> dict[str, Any]:
         """The CLI's record of the pick."""
@@ -415,6 +475,7 @@ class Pick:
             "passenger_points": self.passenger_points,
             "unsure": self.unsure,
             "hung_on": self.hung_on,
+            "region": self.region,
         }
 
 
@@ -575,6 +636,8 @@ class BinPicker:
         self.home_pos, self.home_yaw = self.ctl.pinch_pos(), self.ctl.pinch_yaw()
         self.table_z = names.TABLE_TOP_Z
         self.roi = bin_roi(world)
+        self.exclude: list[tuple[np.ndarray, np.ndarray]] = []
+        self.region = "bin"  # where parts are searched: "bin", or "table" (:meth:`to_table`)
         self.samples = _surface_samples(self.obj)  # the model's surface, for its own points
         self.sensed: Any = None
         self.last_tilt_deg = 0.0  # the last pick's approach from straight down (degrees)
@@ -626,6 +689,18 @@ class BinPicker:
         # every input of the fused sensor, holding no view until one is captured
         held: dict[str, Any] = {d: HeldViews(d) for d in ("range_finder", "wrist_camera")}
         self._used_views = []
+        if self.region == "table":  # the scanner sees the table; the wrist views the bin
+            scanned = self._capture(held, "range_finder")
+            self.faults_seen.update(self.faults)
+            if not scanned:
+                from mks_sim.errors import SensorFailure
+
+                why = self.faults.get("range_finder", "no reading")
+                raise SensorFailure("range_finder", f"the table is searched in its view: {why}")
+            self.sensed = self._localize(held)
+            self.views = 1
+            self.perception_s = time.perf_counter() - t
+            return list(self.sensed.instances.instances)
         if not self._capture(held, "range_finder"):
             # no scanner: the wrist camera's first view from the first reachable viewpoint
             if self._move_to_next_view() is not None or not self.view.viewpoints:
@@ -657,6 +732,16 @@ class BinPicker:
         self.faults_seen.update(self.faults)
         self.perception_s = time.perf_counter() - t
         return list(self.sensed.instances.instances)
+
+    def to_table(self) -> None:
+        """Search the table around the bin from now on (:func:`table_roi`: parts that ended
+        outside the bin and the box, lifted out with a picked part or dropped on the way),
+        with the range finder's view alone (the wrist camera's viewpoints are over the bin);
+        grasps keep their fingers off the bin's and the box's walls
+        (:func:`walls_block_outside`)."""
+        self.roi, self.exclude = table_roi(self.world)
+        self.region = "table"
+        self.redraw()
 
     def unsure_left(self, avoid: Sequence[np.ndarray] = ()) -> list[Any]:
         """When the last sensing reported nothing: its unsure instances (found, their pose not
@@ -707,8 +792,8 @@ class BinPicker:
         prior = [i.matrix for i in before.instances.instances] if before is not None else []
         # the held views stand for their devices; the others serve the sensor's alternates
         return localize_instances(
-            {**self.devices, **held}, self.name, roi=self.roi, graph=self.graph, rng=self.rng,
-            models=self.models, sensor=VIEWS_SENSOR, prior=prior,
+            {**self.devices, **held}, self.name, roi=self.roi, exclude=self.exclude,
+            graph=self.graph, rng=self.rng, models=self.models, sensor=VIEWS_SENSOR, prior=prior,
         )  # fmt: skip
 
     def _needs_view(self, *, scanned: bool = True) -> str:
@@ -832,9 +917,14 @@ class BinPicker:
             min_width_m=BIN_MIN_WIDTH_M, max_face_lean_deg=BIN_MAX_FACE_LEAN_DEG,
         )  # fmt: skip
         if obstacles != "none":  # the walls are rigid: no round lets the fingers onto them
-            lo, hi = bin_walls_xy(self.world)
             over = TOUCH_WALL_OVERLAP_M if obstacles == "touch" else 0.0
-            cands = [c for c in cands if not walls_block(c, lo, hi, self.table_z, over)]
+            if self.region == "table":
+                walls = containers(self.world)
+                blocked = [walls_block_outside(c, walls, self.table_z, over) for c in cands]
+                cands = [c for c, b in zip(cands, blocked, strict=True) if not b]
+            else:
+                lo, hi = bin_walls_xy(self.world)
+                cands = [c for c in cands if not walls_block(c, lo, hi, self.table_z, over)]
         self._grasp_memo = (self.sensed, i, obstacles, cands)
         return self._untried(cands, obstacles)
 
@@ -982,12 +1072,16 @@ def clear_bin(
     perturb: PlanPerturbation | None = None,
     active: bool = True,
     models: Sequence[str | Path] = (),
+    table: bool = True,
 ) -> dict[str, Any]:
     """Clear the bin: sense, localize every instance, pick the best-scored one that has a
     collision-free reachable grasp, lift it out, drop it in the output box, repeat.
 
-    Stops when nothing is found, no instance found has a collision-free grasp, or
-    ``budget`` picks were tried. A failed pick is recorded with its reason and the loop goes
+    The bin is done when nothing is found, or no instance found has a collision-free grasp.
+    Then (``table``) the table around the bin is searched (:meth:`BinPicker.to_table`: parts
+    lifted out with a picked one or dropped on the way) and picked the same way, until
+    nothing is found there either, or no grasp. Stops when that is done, or ``budget`` picks
+    were tried. A failed pick is recorded with its reason and the loop goes
     on (the instance it failed on is tried last next time). When no instance has a grasp
     but one with an antipodal pair, or one that leans (:func:`leans`), lies against a wall,
     it is pushed away from the wall (:func:`plan_push`, at most
@@ -1004,11 +1098,15 @@ def clear_bin(
             a grasp made to miss).
         active: take a second view when the first is not good enough (``BinPicker.sense``).
         models: extra model folders (``--models``).
+        table: when the bin is done, pick the parts found on the table around it.
 
     Returns:
         ``{"present", "picked", "cleared_fraction", "picks": [Pick.to_json()], "time_s",
-        "stopped", "pushes"}`` (``picked``, ``present``, ``success`` are evaluation from
-        ground truth).
+        "stopped", "table_stopped", "pushes"}`` (``picked``, ``present``, ``success`` are
+        evaluation from ground truth; ``stopped``: why the bin was done; ``table_stopped``:
+        why the search of the table after it ended, null when the table was not searched --
+        ``table`` off, the range finder failed, the budget spent in the bin; a pick's
+        ``region`` says where its part was).
 
     Raises:
         SpecError: the scene has no ``[output_box]`` (at the first part carried to it;
@@ -1027,7 +1125,19 @@ def clear_bin(
     picks: list[Pick] = []
     retries = 0
     pushed: list[np.ndarray] = []  # (2, 3) per push: the part's estimated origin, and + push
-    stopped = "budget spent"
+    stopped = "budget spent"  # why the search of the region (the bin, then the table) ended
+    bin_stopped: str | None = None  # ... of the bin, once the table is searched
+
+    def done(why: str) -> bool:
+        """The region is done for ``why``: go on with the table (True), or stop."""
+        nonlocal bin_stopped, stopped
+        if table and robot.region == "bin" and "range_finder" not in robot.faults:
+            bin_stopped, stopped = why, "budget spent"
+            robot.to_table()
+            return True
+        stopped = why
+        return False
+
     while len(picks) < budget:
         t0 = time.perf_counter()
         try:
@@ -1041,7 +1151,8 @@ def clear_bin(
             found = robot.unsure_left(failed_at)
             unsure = bool(found)
         if not found:
-            stopped = "nothing found"
+            if done("nothing found"):
+                continue
             break
         # instances a pick failed on go last (the failure may repeat); before them, those
         # with another instance resting on them (it would be carried along and dropped)
@@ -1068,7 +1179,7 @@ def clear_bin(
             chosen, blocked, no_pair = _choose_grasp(
                 robot.grasps, order, near_failed, robot.clear_of_neighbours
             )
-        if chosen is None and len(pushed) < PUSHES_PER_BIN:
+        if chosen is None and robot.region == "bin" and len(pushed) < PUSHES_PER_BIN:
             # a part against a wall: push it away with the closed hand, sense again
             push = _push_candidate(robot, found, order, pushed)
             if push is not None:
@@ -1092,9 +1203,11 @@ def clear_bin(
             why = f"no grasp ({blocked} blocked by obstacles, {no_pair} without a pair)"
             dt = time.perf_counter() - t0
             picks.append(
-                Pick(-1, False, False, why, dt, robot.perception_s, robot.views, 0.0, None)
-            )
-            stopped = "no collision-free grasp for any instance found"
+                Pick(-1, False, False, why, dt, robot.perception_s, robot.views, 0.0, None,
+                     region=robot.region)
+            )  # fmt: skip
+            if done("no collision-free grasp for any instance found"):
+                continue
             break
         i, cands = chosen
         T = found[i].matrix
@@ -1126,6 +1239,7 @@ def clear_bin(
                 robot.last_passengers,
                 unsure,
                 robot.last_hung_on,
+                robot.region,
             )  # fmt: skip
         )
         if stopped.startswith("simulation failed"):
@@ -1137,7 +1251,8 @@ def clear_bin(
         "cleared_fraction": round(picked / max(len(robot.bodies), 1), 4),
         "picks": [p.to_json() for p in picks],
         "time_s": round(time.perf_counter() - t_start, 3),
-        "stopped": stopped,
+        "stopped": stopped if bin_stopped is None else bin_stopped,
+        "table_stopped": None if bin_stopped is None else stopped,
         "pushes": len(pushed),
         **fault_fields(
             robot.faults_seen, robot.sensed.provenance if robot.sensed is not None else {}
@@ -1376,6 +1491,65 @@ def walls_block(
     lo, hi = np.asarray(walls_lo, dtype=float), np.asarray(walls_hi, dtype=float)
     r = radius - overlap_m
     return bool(np.any(world - r < lo) or np.any(world + r > hi))
+
+
+@dataclass(frozen=True)
+class Walls:
+    """A walled container on the table seen from above (scene data): the bin or the box.
+
+    Attributes:
+        inner_lo, inner_hi: (2,) xy corners of the walls' inner faces.
+        outer_lo, outer_hi: (2,) xy corners of their outer faces.
+        height_m: the walls' top above the table.
+    """
+
+    inner_lo: np.ndarray
+    inner_hi: np.ndarray
+    outer_lo: np.ndarray
+    outer_hi: np.ndarray
+    height_m: float
+
+
+def containers(world: World) -> list[Walls]:
+    """The bin (its region inside the fixtures, :data:`BIN_WALL_M` high) and the output box
+    (:class:`~mks_sim.sim.scenes.OutputBox`) as :class:`Walls` (scene data)."""
+    lo, hi = bin_walls_xy(world)
+    outer = _outer_xy(world, "fixture_")
+    olo, ohi = (lo, hi) if outer is None else (np.minimum(lo, outer[0]), np.maximum(hi, outer[1]))
+    out = [Walls(lo, hi, olo, ohi, BIN_WALL_M)]
+    box = world.scene.output_box
+    if box is not None:
+        c = np.asarray(box.center_xy, dtype=float)
+        inner = np.asarray(box.inner_half_xy, dtype=float)
+        full = np.asarray(box.half_xy, dtype=float) + 0.5 * box.wall_thickness_m
+        out.append(Walls(c - inner, c + inner, c - full, c + full, box.wall_height_m))
+    return out
+
+
+def walls_block_outside(
+    cand: Any, walls: Sequence[Walls], table_z: float, overlap_m: float = 0.0
+) -> bool:
+    """A top-down descent of ``cand``, whose pinch point lies outside every container's
+    inner faces (a part on the table beside the bin or the box), would bring an open finger
+    onto a container's walls: a finger's footprint (:func:`finger_footprint`, its radius less
+    ``overlap_m``) reaches within the walls' outer faces while the fingers reach below their
+    top. The fingers must stay on the pinch point's side of every wall. A pinch point
+    inside a container is :func:`walls_block`'s case (True here: not a table grasp).
+    Tilted candidates are not checked here (False)."""
+    if getattr(cand, "rotation_world", None) is not None:
+        return False
+    pinch = np.asarray(cand.pinch_world, dtype=float)
+    world, radius = _footprint_world(cand)
+    r = radius - overlap_m
+    for w in walls:
+        if pinch[2] - FOOTPRINT_BELOW_PINCH_M >= table_z + w.height_m:
+            continue
+        if np.all(pinch[:2] > w.inner_lo) and np.all(pinch[:2] < w.inner_hi):
+            return True
+        gap = np.maximum(np.maximum(w.outer_lo - world, world - w.outer_hi), 0.0)  # (3, 2)
+        if np.any(np.linalg.norm(gap, axis=1) < r):
+            return True
+    return False
 
 
 def _split_clear(cands: Sequence[Any], parts: np.ndarray) -> tuple[list[Any], list[Any], list[Any]]:
@@ -2126,6 +2300,7 @@ def run_clear_bin(
     scene: str | Path = BIN_SCENE,
     active: bool = True,
     models: Sequence[str | Path] = (),
+    table: bool = True,
 ) -> dict[str, Any]:
     """Build the bin from ``seed`` and clear it (:func:`clear_bin`): the record of
     ``mks-sim grasp --task clear_bin`` (plus ``seed``, ``object``, ``failed_devices``, and
@@ -2145,7 +2320,7 @@ def run_clear_bin(
     with make_devices(world.model, world.data, np.random.default_rng(seed), faults) as devices:
         rec = clear_bin(
             world, devices, object_name=name, rng=np.random.default_rng(seed), budget=budget,
-            perturb=perturb, active=active, models=models,
+            perturb=perturb, active=active, models=models, table=table,
         )  # fmt: skip
     from mks_sim.sim import truth
 
