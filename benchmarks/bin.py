@@ -31,6 +31,7 @@ Run (the lead, on an idle machine)::
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import traceback
 from collections import Counter
@@ -91,6 +92,19 @@ def _run(fn: Any, jobs: list[Any], workers: int) -> list[dict[str, Any]]:
         return [fn(j) for j in jobs]
     with ProcessPoolExecutor(workers) as pool:
         return list(pool.map(fn, jobs))
+
+
+def _keep(
+    path: Path | None, mode: str, task: str, recs: list[dict[str, Any]]
+) -> list[dict[str, Any]]:
+    """Append ``recs`` to the JSON-lines file ``path`` (None: nothing), each with its mode
+    and task; returns ``recs``."""
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with path.open("a") as f:
+            for r in recs:
+                f.write(json.dumps({"mode": mode, "task": task, **r}, default=str) + "\n")
+    return recs
 
 
 def localization_rows(recs: list[dict[str, Any]]) -> list[str]:
@@ -213,6 +227,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n-failed", type=int, default=None,
                     help="bins cleared with the range finder failed (the first of the --n; "
                          "default all: each takes 2-3x a healthy one)")  # fmt: skip
+    ap.add_argument("--records", type=Path, default=None,
+                    help="also write every bin's raw record (JSON lines: the mode, the "
+                         "clear_bin or --all record) here, for diagnosis")  # fmt: skip
     ap.add_argument("--out", type=Path, default=None,
                     help=f"write the markdown here (default {DEFAULT_OUT}; --quick: stdout)")  # fmt: skip
     args = ap.parse_args(argv)
@@ -228,7 +245,9 @@ def main(argv: list[str] | None = None) -> int:
         jobs = [(s, count, fail, active) for s in seeds]
         lines += [f"## Localization of every instance, {mode}", "", "| | found | rate |",
                   "|---|---|---|"]  # fmt: skip
-        lines += localization_rows(_run(_localize, jobs, args.workers)) + [""]
+        lines += localization_rows(
+            _keep(args.records, mode, "localize", _run(_localize, jobs, args.workers))
+        ) + [""]
         if args.no_clear or not clear:
             continue
         title = f"## clear_bin, {mode}"
@@ -236,7 +255,9 @@ def main(argv: list[str] | None = None) -> int:
             jobs = jobs[: max(args.n_failed, 0)]
             title += f" (the first {len(jobs)} bins)"
         lines += [title, "", "| | | |", "|---|---|---|"]
-        lines += clearing_rows(_run(_clear, jobs, args.workers)) + [""]
+        lines += clearing_rows(
+            _keep(args.records, mode, "clear", _run(_clear, jobs, args.workers))
+        ) + [""]
         print("\n".join(lines), file=sys.stderr, flush=True)  # progress
     text = "\n".join(lines) + "\n"
     if args.out:

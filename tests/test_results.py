@@ -74,3 +74,26 @@ def test_bin_clearing_counts_the_parts_picked_from_the_table() -> None:
     assert "| of which picked from the table around the bin | 1 |" in rows
     assert "| then the table searched, stopped: nothing found | 1 | |" in rows
     assert "| bins stopped: nothing found | 2 | |" in rows
+
+
+def test_bin_records_are_kept_as_json_lines(tmp_path) -> None:
+    """``--records``: every bin's record, with its mode and task, one JSON line each,
+    appended across the sweep's sections; the rows are built from the same records."""
+    import json
+
+    sys.path.insert(0, str(BENCH))
+    spec = importlib.util.spec_from_file_location("bench_bin", BENCH / "bin.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    path = tmp_path / "sub" / "records.jsonl"
+    a = [{"seed": 1, "picked": 2}, {"seed": 2, "picked": 0}]
+    assert mod._keep(path, "healthy", "clear", a) is a
+    mod._keep(path, "range finder failed", "localize", [{"seed": 1, "found": 3}])
+    assert mod._keep(None, "healthy", "clear", a) is a
+    lines = [json.loads(x) for x in path.read_text().splitlines()]
+    assert lines == [
+        {"mode": "healthy", "task": "clear", "seed": 1, "picked": 2},
+        {"mode": "healthy", "task": "clear", "seed": 2, "picked": 0},
+        {"mode": "range finder failed", "task": "localize", "seed": 1, "found": 3},
+    ]
