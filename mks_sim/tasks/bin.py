@@ -131,13 +131,19 @@ def _static_boxes_xy(world: World, prefix: str) -> list[tuple[np.ndarray, np.nda
     """World xy corners ((2,) lo, (2,) hi) of the static box geoms whose names start with
     ``prefix`` (``fixture_``: the scene's ``[[fixture]]`` boxes, the bin's walls;
     ``output_box_wall_``: the output box's walls) -- scene data, not ground truth."""
-    m, d = world.model, world.data
-    out = []
-    for g in range(m.ngeom):
-        if (mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith(prefix):
-            half = np.abs(d.geom_xmat[g].reshape(3, 3)[:2]) @ m.geom_size[g]
-            out.append((d.geom_xpos[g][:2] - half, d.geom_xpos[g][:2] + half))
-    return out
+    m = world.model
+    return [
+        _geom_xy(world, g)
+        for g in range(m.ngeom)
+        if (mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith(prefix)
+    ]
+
+
+def _geom_xy(world: World, g: int) -> tuple[np.ndarray, np.ndarray]:
+    """World xy corners ((2,) lo, (2,) hi) of box geom ``g`` seen from above."""
+    d = world.data
+    half = np.abs(d.geom_xmat[g].reshape(3, 3)[:2]) @ world.model.geom_size[g]
+    return d.geom_xpos[g][:2] - half, d.geom_xpos[g][:2] + half
 
 
 def _outer_xy(world: World, prefix: str) -> tuple[np.ndarray, np.ndarray] | None:
@@ -154,29 +160,17 @@ def table_roi(
     """((lo, hi) world corners of the table top up to ``ROI_HEIGHT_M`` above it, [(lo, hi)
     xy regions left out]): where parts that ended outside the bin are searched
     (:meth:`BinPicker.to_table`). Left out, :data:`SPILL_MARGIN_M` beyond their outer faces:
-    the bin (its region and the fixtures, its walls) and the output box with its walls.
-    Scene data (the table's and fixtures' geoms), not ground truth."""
+    the bin and the output box (:func:`containers`). Scene data (the table's and fixtures'
+    geoms), not ground truth."""
     from mks_sim.sim import names
 
-    m, d = world.model, world.data
-    g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, names.TABLE_TOP_GEOM)
-    half = np.abs(d.geom_xmat[g].reshape(3, 3)[:2]) @ m.geom_size[g]
+    g = mujoco.mj_name2id(world.model, mujoco.mjtObj.mjOBJ_GEOM, names.TABLE_TOP_GEOM)
+    lo, hi = _geom_xy(world, g)
     z = world.scene.support_z
-    roi = (
-        np.array([*(d.geom_xpos[g][:2] - half), z - 0.02]),
-        np.array([*(d.geom_xpos[g][:2] + half), z + ROI_HEIGHT_M]),
-    )
-    lo, hi = bin_walls_xy(world)
-    excluded = [(lo, hi)]
-    for prefix in ("fixture_", "output_box_wall_"):
-        outer = _outer_xy(world, prefix)
-        if outer is not None:
-            excluded.append(outer)
-    box = world.scene.output_box
-    if box is not None:  # its inside, should it have no walls of its own
-        c, h = np.asarray(box.center_xy), np.asarray(box.half_xy)
-        excluded.append((c - h, c + h))
-    return roi, [(a - SPILL_MARGIN_M, b + SPILL_MARGIN_M) for a, b in excluded]
+    roi = (np.array([*lo, z - 0.02]), np.array([*hi, z + ROI_HEIGHT_M]))
+    return roi, [
+        (w.outer_lo - SPILL_MARGIN_M, w.outer_hi + SPILL_MARGIN_M) for w in containers(world)
+    ]
 
 
 def visible_fraction(mesh_points: np.ndarray, T: np.ndarray, sensed: np.ndarray) -> float:
