@@ -31,6 +31,7 @@ class StubPicker:
 
         self.world, self.bodies = world, ["part"]
         self.failed_grasps: list[Any] = []
+        self.felt: list[Any] = []
         self.retry_failed = False
         self.in_box = False
         self.sensed = SimpleNamespace(provenance={})

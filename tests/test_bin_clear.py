@@ -312,7 +312,7 @@ def test_grasps_that_failed_are_not_tried_again():
     ok, why, _, failed = binmod._pick(NoReach(), cands, None, 0, None, 0.75, 0.1)
     assert not ok and why.startswith("unreachable (2 pre-grasp")
     assert {id(c) for c in failed} == {id(c) for c in cands}
-    robot = SimpleNamespace(failed_grasps=failed, retry_failed=False)
+    robot = SimpleNamespace(failed_grasps=failed, felt=[], retry_failed=False)
     later = [_cand(10.0, 0.005), _cand(40.0, 0.0), _cand(90.0, 0.03)]
     kept = binmod.BinPicker._untried(robot, later, "all")
     assert [id(c) for c in kept] == [id(later[1]), id(later[2])]
@@ -322,6 +322,93 @@ def test_grasps_that_failed_are_not_tried_again():
     robot.retry_failed = True
     again = binmod.BinPicker._untried(robot, [cands[0], *later], "all")
     assert [id(c) for c in again] == [id(later[1]), id(later[2]), id(later[0]), id(cands[0])]
+
+
+def test_a_descent_stopped_short_keeps_later_fingers_off_the_spot():
+    """A post stands under one finger of candidate A (placed with the measured footprint):
+    A's descent stops where that finger meets the post's top. The pick skips D (a hand
+    turned 60 deg from A, so not alike it, with another finger over the post), tries E, and
+    the bin's later planning drops such candidates too -- until it has stalled. A candidate
+    whose pinch stays above where A stopped, and one with no finger near the post, are
+    kept."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from mks_sim.tasks import bin as binmod
+    from mks_sim.tasks.grasp import PRESHAPE_MARGIN_M, down_rotation
+
+    post = np.array([0.0, 0.0, 0.78])  # xy, top
+    width = 0.03
+
+    def cand(yaw_deg: float, finger: int, at: np.ndarray, z: float = 0.76):
+        """A top-down candidate at ``yaw_deg`` whose finger ``finger`` centre lies at ``at``."""
+        a = np.radians(yaw_deg)
+        c, s = np.cos(a), np.sin(a)
+        centres, _ = binmod.finger_footprint(width + PRESHAPE_MARGIN_M)
+        off = centres[finger, 0] * np.array([c, s]) + centres[finger, 1] * np.array([s, -c])
+        pinch = np.array([*(at[:2] - off), z])
+        plan = SimpleNamespace(
+            preshape_q=0.3, pregrasp_world=pinch + [0, 0, 0.1], yaw_rad=a, target_rotation=None,
+            hand_rotation=down_rotation(a), grasp_point_world=pinch,
+        )  # fmt: skip
+        return SimpleNamespace(
+            hand_rotation=plan.hand_rotation, pinch_world=pinch, yaw_rad=a, width_m=width,
+            plan=lambda action: plan,
+        )  # fmt: skip
+
+    A = cand(0.0, 0, post[:2] + [0.003, -0.002])
+    D = cand(60.0, 2, post[:2] + [-0.004, 0.003])
+    E = cand(90.0, 1, np.array([0.3, 0.3]))
+
+    class Hand:
+        """Goes where it is sent, except: E's pre-grasp is out of reach, and a descent stops
+        when the lowest point of a finger whose footprint covers the post meets its top."""
+
+        def __init__(self):
+            self.at, self.yaw = np.zeros(3), 0.0
+
+        def preshape(self, q, steps):
+            pass
+
+        def move_to(self, pos, yaw, spacing_m=0.01, rotation=None):
+            pos = np.asarray(pos, dtype=float)
+            if np.allclose(pos, E.plan(None).pregrasp_world):
+                return False
+            self.yaw = yaw
+            probe = SimpleNamespace(pinch_world=pos, yaw_rad=yaw, width_m=width)
+            centres, r = binmod._footprint_world(probe)
+            over = np.linalg.norm(centres - post[:2], axis=1).min() < r
+            floor = post[2] + binmod.FOOTPRINT_BELOW_PINCH_M
+            self.at = pos.copy()
+            if over and pos[2] < floor:
+                self.at[2] = floor
+                return False
+            return True
+
+        def pinch_pos(self):
+            return self.at.copy()
+
+        def pinch_rotation(self):
+            return down_rotation(self.yaw)
+
+    felt: list = []
+    ok, why, _, failed = binmod._pick(Hand(), [A, D, E], None, 0, None, 0.75, 0.1, felt=felt)
+    assert not ok and why == "unreachable (1 pre-grasp, 1 descent blocked)"
+    assert [id(c) for c in failed] == [id(A), id(E)]  # D skipped: not tried
+    assert len(felt) == 1 and felt[0].shape == (3, 3)
+    assert np.min(np.linalg.norm(felt[0][:, :2] - post[:2], axis=1)) < 0.005
+    # later plannings of the bin
+    robot = SimpleNamespace(failed_grasps=[], felt=felt, retry_failed=False)
+    D2 = cand(-50.0, 1, post[:2] + [0.002, 0.004])
+    high = cand(-50.0, 1, post[:2], z=post[2] + 0.02)  # stays above where A stopped
+    clear = cand(30.0, 0, post[:2] + [0.15, 0.0])
+    kept = binmod.BinPicker._untried(robot, [D2, high, clear], "all")
+    assert [id(c) for c in kept] == [id(high), id(clear)]
+    robot.retry_failed = True
+    assert [id(c) for c in binmod.BinPicker._untried(robot, [D2, clear], "all")] == [
+        id(clear), id(D2)
+    ]  # fmt: skip
 
 
 def test_a_bin_stalled_on_grasps_that_failed_tries_them_again(monkeypatch):

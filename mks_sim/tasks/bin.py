@@ -650,6 +650,8 @@ class BinPicker:
         self.view_gains: dict[int, int] = {}
         self.placed: list[np.ndarray] = []  # footprints of the parts let go in the box
         self.failed_grasps: list[Any] = []  # grasps the arm could not reach (not tried again)
+        # where descents stopped short since a part last left the bin (:func:`felt_points`)
+        self.felt: list[np.ndarray] = []
         self.last_passengers = 0  # points of parts lifted with the last pick's part
         self.last_hung_on = 0  # times the last pick's part hung on the opened hand
         self.retry_failed = False  # ... unless the bin has stalled (:meth:`_untried`)
@@ -947,10 +949,21 @@ class BinPicker:
         With :attr:`retry_failed` (set by :func:`clear_bin` when nothing else is left) the
         alike ones come after the others instead of going, those failed themselves last: a
         blocked descent is not always repeatable (tuning bin 10's last part, its state
-        replayed: a candidate 2 mm beside the blocked one reached, held and was carried)."""
-        if obstacles == "none" or not self.failed_grasps:
+        replayed: a candidate 2 mm beside the blocked one reached, held and was carried).
+
+        Top-down candidates that would bring an open finger down where a finger stopped a
+        descent before (:attr:`felt`, :func:`felt_points`) count as alike a failed grasp:
+        the hand felt something there, which the sensed points did not show (tuning bin 4:
+        nine descents onto one part, by candidates more than 25 degrees apart, all stopped
+        on the same neighbour's end under a fingertip)."""
+        if obstacles == "none" or not (self.failed_grasps or self.felt):
             return list(cands)
-        fresh = [c for c in cands if not any(_alike(c, f) for f in self.failed_grasps)]
+        felt = np.concatenate(self.felt) if self.felt else np.empty((0, 3))
+        fresh = [
+            c for c in cands
+            if not any(_alike(c, f) for f in self.failed_grasps)
+            and not fingers_blocked(c, felt, 0.0)
+        ]  # fmt: skip
         if not self.retry_failed:
             return fresh
         failed_ids = {id(f) for f in self.failed_grasps}
@@ -985,9 +998,12 @@ class BinPicker:
         if instance is None and self._grasp_memo is not None and self._grasp_memo[0] is self.sensed:
             instance = self._grasp_memo[1]
         ok, failure, pinch_to_world, failed = _pick(
-            ctl, cands, self.action, index, perturb, self.table_z, TOUCH_THRESHOLD_N
-        )
+            ctl, cands, self.action, index, perturb, self.table_z, TOUCH_THRESHOLD_N,
+            felt=self.felt,
+        )  # fmt: skip
         self.failed_grasps += failed
+        if ok:  # a part left the bin: what was felt may have gone with it
+            self.felt.clear()
         self.last_tilt_deg = float(
             np.degrees(np.arccos(np.clip(-ctl.pinch_rotation()[2, 2], -1, 1)))
         )
@@ -1185,6 +1201,7 @@ def clear_bin(
                 except PhysicsError as exc:
                     stopped = f"simulation failed: {exc}"
                 pushed.append(_pushed_from_to(found[i].matrix, plan))
+                robot.felt.clear()  # the push moved what the fingers had felt
                 dt = time.perf_counter() - t0
                 picks.append(
                     Pick(i, False, False, PUSHED, dt, robot.perception_s, robot.views,
@@ -1451,6 +1468,22 @@ def fingers_blocked(cand: Any, points: np.ndarray, margin_m: float) -> bool:
     return bool(np.any(d < radius + margin_m))
 
 
+def felt_points(cand: Any, stopped_at: np.ndarray) -> np.ndarray | None:
+    """(3, 3) where a top-down descent of ``cand`` that stopped short with the pinch site at
+    ``stopped_at`` (the arm's forward kinematics) felt something: the open fingers'
+    footprint centres (:func:`finger_footprint`) moved to where the hand stopped, at the
+    fingers' lowest point (:data:`FOOTPRINT_BELOW_PINCH_M` below the pinch site). Which
+    finger met it the hand cannot tell (its touch pads face inward), so each is a point:
+    :func:`fingers_blocked` with them keeps a later descent's fingers off all three spots
+    while it would go lower. None for a tilted candidate (no footprint)."""
+    if getattr(cand, "rotation_world", None) is not None:
+        return None
+    world, _ = _footprint_world(cand)
+    stop = np.asarray(stopped_at, dtype=float)
+    xy = world + (stop[:2] - np.asarray(cand.pinch_world, dtype=float)[:2])
+    return np.column_stack([xy, np.full(3, stop[2] - FOOTPRINT_BELOW_PINCH_M)])
+
+
 def _footprint_world(cand: Any) -> tuple[np.ndarray, float]:
     """((3, 2) world xy of a top-down candidate's open fingers' footprint centres, radius)
     (:func:`finger_footprint`, pre-shaped to the candidate's width + grasp.PRESHAPE_MARGIN_M)."""
@@ -1655,14 +1688,22 @@ def _pick(
     perturb: PlanPerturbation | None,
     table_z: float,
     touch_n: float,
+    *,
+    felt: list[np.ndarray] | None = None,
 ) -> tuple[bool, str, np.ndarray | None, list[Any]]:
     """Reach, close and lift with the first reachable candidate. Returns (believed held,
     failure reason, (4, 4) pinch-to-world where the hand closed when held, else None, the
-    candidates the arm could not reach: not tried again, :meth:`BinPicker._untried`)."""
+    candidates the arm could not reach: not tried again, :meth:`BinPicker._untried`).
+
+    A top-down descent that stops short appends :func:`felt_points` to ``felt`` (when
+    given); the candidates after it that would bring a finger down there are skipped."""
     plan = None
     no_ik = blocked = 0
     tried: list[Any] = []
+    felt_here: list[np.ndarray] = []
     for cand in _to_try(cands):
+        if felt_here and fingers_blocked(cand, np.concatenate(felt_here), 0.0):
+            continue
         tried.append(cand)
         p = cand.plan(action)
         if perturb is not None:
@@ -1683,6 +1724,11 @@ def _pick(
             plan = p
             break
         blocked += 1
+        stop = felt_points(cand, ctl.pinch_pos())
+        if stop is not None:
+            felt_here.append(stop)
+            if felt is not None:
+                felt.append(stop)
         ctl.move_to(p.pregrasp_world, p.yaw_rad, spacing_m=0.02, rotation=rot)
     if plan is None:
         return False, f"unreachable ({no_ik} pre-grasp, {blocked} descent blocked)", None, tried
