@@ -19,6 +19,16 @@ def _collect() -> ModuleType:
     return mod
 
 
+def _bench_bin() -> ModuleType:
+    """``benchmarks/bin.py`` as a module (its own imports, ``_provenance``, from there)."""
+    sys.path.insert(0, str(BENCH))
+    spec = importlib.util.spec_from_file_location("bench_bin", BENCH / "bin.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def test_results_md_matches_the_sections_and_every_section_has_provenance() -> None:
     cr = _collect()
     parts = cr.sections()
@@ -41,11 +51,7 @@ def test_check_reports_a_stale_page_and_a_section_without_provenance() -> None:
 def test_bin_clearing_counts_a_bin_that_raised_as_nothing_picked() -> None:
     """A bin whose clear_bin run raised keeps its parts in the denominator (it was dropped,
     which lifted 11 picked of 24 present to '11 / 18')."""
-    sys.path.insert(0, str(BENCH))
-    spec = importlib.util.spec_from_file_location("bench_bin", BENCH / "bin.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = _bench_bin()
     ok = {"seed": 1, "picked": 3, "present": 6, "stopped": "empty", "picks": []}
     raised = {"seed": 2, "present": 6, "error": "FatalError: out of memory", "trace": ""}
     rows = "\n".join(mod.clearing_rows([ok, raised]))
@@ -56,11 +62,7 @@ def test_bin_clearing_counts_a_bin_that_raised_as_nothing_picked() -> None:
 def test_bin_clearing_counts_the_parts_picked_from_the_table() -> None:
     """Picks from the table around the bin count among the parts picked and on a row of
     their own; a bin whose table was searched says how that search ended."""
-    sys.path.insert(0, str(BENCH))
-    spec = importlib.util.spec_from_file_location("bench_bin", BENCH / "bin.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = _bench_bin()
     pick = {"success": True, "time_s": 9.0, "perception_s": 1.0, "views": 1}
     recs = [
         {"seed": 1, "picked": 2, "present": 2, "stopped": "nothing found",
@@ -81,11 +83,7 @@ def test_bin_records_are_kept_as_json_lines(tmp_path) -> None:
     appended across the sweep's sections; the rows are built from the same records."""
     import json
 
-    sys.path.insert(0, str(BENCH))
-    spec = importlib.util.spec_from_file_location("bench_bin", BENCH / "bin.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = _bench_bin()
     path = tmp_path / "sub" / "records.jsonl"
     a = [{"seed": 1, "picked": 2}, {"seed": 2, "picked": 0}]
     assert mod._keep(path, "healthy", "clear", a) is a
