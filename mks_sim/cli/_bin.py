@@ -58,6 +58,7 @@ def format_all_text(rec: dict[str, Any]) -> str:
     if rec.get("unsure"):
         lines.append(
             f"  not reported: {rec['unsure']} instance(s) whose pose their points do not pin down"
+            " or see through"
         )
     served = ", ".join(f"{k} <- {v}" for k, v in sorted(rec["provenance"].items()))
     lines.append(f"logical sensors: {served}")

@@ -287,7 +287,8 @@ def run_localize_all(
         ``{"scene", "object", "seed", "instances": [{"matrix", "score", "visible_fraction",
         "error": {"position_mm", "rotation_deg"}, "correct", "stability"}], "found",
         "present", "false_positives", "missed", "unsure" (instances found but not reported:
-        their pose not pinned down, ``localize_all``'s ``min_stability``), "provenance",
+        their pose not pinned down or seen through, ``localize_all``'s ``min_stability`` and
+        ``max_inside_reported``), "provenance",
         "views", "view_names", "view_log", "faults", "warnings", "fault_reasons", "time_s",
         "timing_s", "failed_devices"}``
         (``error``, ``visible_fraction``, ``correct``, ``present``, ``false_positives`` and
@@ -429,7 +430,7 @@ class Pick:
             on its side or upside down is grasped tilted).
         passenger_points: points of other parts the range finder saw lifted with the held
             one at the travel height (:func:`passenger_points`; 0: none seen).
-        unsure: the instance was one whose pose its points do not pin down
+        unsure: the instance was one whose pose its points do not pin down or see through
             (``Instances.unsure``), picked because no other was left
             (:meth:`BinPicker.unsure_left`).
         hung_on: times the hand, opened over the box, still felt the part on a pad and was
@@ -741,9 +742,9 @@ class BinPicker:
 
     def unsure_left(self, avoid: Sequence[np.ndarray] = ()) -> list[Any]:
         """When the last sensing reported nothing: its unsure instances (found, their pose not
-        pinned down by their points, ``Instances.unsure``) whose origin is farther than
-        :data:`FAILED_NEAR_M` from every point in ``avoid`` (where picks failed), best score
-        first. They become the sensing's instances, so that :meth:`grasps` plans on them: a
+        pinned down by their points or seen through, ``Instances.unsure``) whose origin is
+        farther than :data:`FAILED_NEAR_M` from every point in ``avoid`` (where picks
+        failed), best score first. They become the sensing's instances, so that :meth:`grasps` plans on them: a
         part whose pose is only unsure is tried rather than left in the bin with "nothing
         found". [] (the sensing unchanged) when there are none."""
         insts = self.sensed.instances
