@@ -505,7 +505,7 @@ def test_instances_whose_pose_is_not_pinned_are_not_reported():
     assert all(0.0 < i.stability <= 1 / 3 + 1e-9 for i in every.instances)
 
 
-def test_an_instance_points_are_seen_through_is_not_reported():
+def test_an_instance_seen_through_is_not_reported():
     """Points inside a part's solid (sensed through where the pose puts material) make its
     pose doubtful: 12 points deep inside the first of two parts (more than 0.3 % of the
     ~2,500 it explains, under the 1 % that lets it be accepted and claim its points) leave it

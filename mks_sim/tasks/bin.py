@@ -744,9 +744,10 @@ class BinPicker:
         """When the last sensing reported nothing: its unsure instances (found, their pose not
         pinned down by their points or seen through, ``Instances.unsure``) whose origin is
         farther than :data:`FAILED_NEAR_M` from every point in ``avoid`` (where picks
-        failed), best score first. They become the sensing's instances, so that :meth:`grasps` plans on them: a
-        part whose pose is only unsure is tried rather than left in the bin with "nothing
-        found". [] (the sensing unchanged) when there are none."""
+        failed), best score first. They become the sensing's instances, so that
+        :meth:`grasps` plans on them: a part whose pose is only unsure is tried rather than
+        left in the bin with "nothing found". [] (the sensing unchanged) when there are
+        none."""
         insts = self.sensed.instances
         if insts.instances:
             return []
