@@ -144,6 +144,7 @@ class _TurningHand:
 
     def __init__(self, pos, yaw):
         self.pos, self.R, self.path = np.asarray(pos, float), down_rotation(yaw), []
+        self.spacings: list[float] = []
 
     def pinch_pos(self):
         return self.pos.copy()
@@ -158,6 +159,7 @@ class _TurningHand:
         self.R = down_rotation(yaw) if rotation is None else rotation
         self.pos = np.asarray(pos, dtype=float).copy()
         self.path.append((self.pos.copy(), self.R.copy()))
+        self.spacings.append(spacing_m)
         return True
 
     def finger_qpos(self):
@@ -226,6 +228,43 @@ def test_the_bundle_is_let_go_inside_the_box(before):
     alone = carried({})
     B = np.concatenate([held, rider]) @ alone.R.T + alone.pos
     assert not (np.all(np.abs(B[:, :2] - c) <= inside) and B[:, 2].min() > rim)
+
+
+def test_a_bundle_is_carried_higher_and_slower_than_a_part_alone():
+    """A passenger hangs lower than the points seen of it (tuning bins 45, 47: dragged over
+    the walls, it pulled the held part out of the grasp): the bundle's lowest seen point
+    crosses the walls BUNDLE_LIFT_M higher than a part alone needs, at BUNDLE_SPACING_M a
+    waypoint; the same part carried alone at 0.02 m and no higher than the margin asks."""
+    table_z = 0.5
+    corners = np.array(list(itertools.product(*[(-s / 2, s / 2) for s in SIZE])))
+    held = corners + [0.0, 0.0, 0.03]  # pinch frame (z down): 30 mm below the pinch point
+    rider = corners + np.array([0.0, 0.07, 0.06])  # beside it and 30 mm lower
+    from _bin_stubs import bin_box
+
+    box = bin_box()
+    wall_top = table_z + max(binmod.BIN_WALL_M, box.wall_height_m)
+
+    def crossing(passengers):
+        """(lowest point of what is carried, spacing) of the move from the bin to the box."""
+        hand = _TurningHand([0.05, -0.02, table_z + 0.16], 0.0)
+        load = held if passengers is None else np.concatenate([held, passengers])
+        kw = {} if passengers is None else {"passengers": passengers}
+        assert binmod._carry_to_box(hand, held, table_z, None, box, placed=[], **kw) == ""
+        k = next(
+            k for k, (pos, _) in enumerate(hand.path) if not np.allclose(pos[:2], [0.05, -0.02])
+        )
+        pos, R = hand.path[k]
+        return (load @ R.T + pos)[:, 2].min(), hand.spacings[k]
+
+    low, spacing = crossing(rider)
+    assert low >= wall_top + binmod.CARRY_MARGIN_M + binmod.BUNDLE_LIFT_M - 1e-9
+    assert spacing == binmod.BUNDLE_SPACING_M < 0.02
+    low_alone, spacing_alone = crossing(None)
+    assert spacing_alone == 0.02
+    # alone: at the pick's travel height, or the margin over the walls, whichever is higher
+    hangs = 0.03 + SIZE[2] / 2
+    assert low_alone == pytest.approx(max(table_z + 0.16 - hangs, wall_top + binmod.CARRY_MARGIN_M))
+    assert low_alone < wall_top + binmod.CARRY_MARGIN_M + binmod.BUNDLE_LIFT_M
 
 
 @pytest.mark.slow
