@@ -2006,7 +2006,9 @@ def _carry_to_box(
     The part's middle goes over its place in the box with its lowest point (or the
     fingertips') ``CARRY_MARGIN_M`` above the walls on the way, then down to
     ``RELEASE_GAP_M`` above the box's rim; a bundle in a place no part was let go in before
-    on down to ``BUNDLE_FLOOR_GAP_M`` above the box's floor. A part carried top-down
+    on down to ``BUNDLE_FLOOR_GAP_M`` above the box's floor. A bundle goes over the walls
+    ``BUNDLE_LIFT_M`` higher (a passenger may hang lower than its points seen) and at
+    ``BUNDLE_SPACING_M`` a waypoint. A part carried top-down
     (``rotation`` None) is turned on the way so that its footprint's bounding rectangle is
     smallest, long side along the box's x; one that will fall over when let go
     (:func:`fall_room`) short side along x, and its place leaves it room to fall.
