@@ -390,8 +390,8 @@ TIPS_BELOW_PINCH_M = 0.018
 #: spacing (the single part's is 0.02 m: half as fast). Tuning bins 45 and 47 (traced with
 #: the ground truth): a passenger seen as 715 points hung lower than seen and dragged over
 #: the bin's and the box's walls until the held part was pulled out of the grasp; a held
-#: part with two passengers turned out of the pads on the carry's first 10 cm, touching
-#: nothing but them.
+#: part with two passengers turned out of the pads 20 cm into the carry, touching nothing
+#: but them.
 BUNDLE_LIFT_M = 0.06
 BUNDLE_SPACING_M = 0.01
 #: A failed pick within this distance of an instance's estimate puts that instance last.
