@@ -234,7 +234,8 @@ def test_a_bundle_is_carried_higher_and_slower_than_a_part_alone():
     """A passenger hangs lower than the points seen of it (tuning bins 45, 47: dragged over
     the walls, it pulled the held part out of the grasp): the bundle's lowest seen point
     crosses the walls BUNDLE_LIFT_M higher than a part alone needs, at BUNDLE_SPACING_M a
-    waypoint; the same part carried alone at 0.02 m and no higher than the margin asks."""
+    waypoint; the same part carried alone at CARRY_SPACING_M and no higher than the margin
+    asks."""
     table_z = 0.5
     corners = np.array(list(itertools.product(*[(-s / 2, s / 2) for s in SIZE])))
     held = corners + [0.0, 0.0, 0.03]  # pinch frame (z down): 30 mm below the pinch point
@@ -258,9 +259,9 @@ def test_a_bundle_is_carried_higher_and_slower_than_a_part_alone():
 
     low, spacing = crossing(rider)
     assert low >= wall_top + binmod.CARRY_MARGIN_M + binmod.BUNDLE_LIFT_M - 1e-9
-    assert spacing == binmod.BUNDLE_SPACING_M < 0.02
+    assert spacing == binmod.BUNDLE_SPACING_M < binmod.CARRY_SPACING_M
     low_alone, spacing_alone = crossing(None)
-    assert spacing_alone == 0.02
+    assert spacing_alone == binmod.CARRY_SPACING_M == 0.02
     # alone: at the pick's travel height, or the margin over the walls, whichever is higher
     hangs = 0.03 + SIZE[2] / 2
     assert low_alone == pytest.approx(max(table_z + 0.16 - hangs, wall_top + binmod.CARRY_MARGIN_M))

@@ -386,12 +386,13 @@ BUNDLE_FLOOR_GAP_M = 0.03
 #: The fingertips reach this far below the pinch point (pad centre 8 mm below, 7 mm half
 #: height, grasp.PAD_CENTRE_BELOW_M): they too keep the gap.
 TIPS_BELOW_PINCH_M = 0.018
-#: A bundle is lifted this much higher before it is carried, and carried at this waypoint
-#: spacing (the single part's is 0.02 m: half as fast). Tuning bins 45 and 47 (traced with
-#: the ground truth): a passenger seen as 715 points hung lower than seen and dragged over
-#: the bin's and the box's walls until the held part was pulled out of the grasp; a held
-#: part with two passengers turned out of the pads 20 cm into the carry, touching nothing
-#: but them.
+#: A part is carried from the bin to the box at this waypoint spacing, ...
+CARRY_SPACING_M = 0.02
+#: ... a bundle lifted this much higher before it is carried, and carried at this waypoint
+#: spacing (half as fast). Tuning bins 45 and 47 (traced with the ground truth): a
+#: passenger seen as 715 points hung lower than seen and dragged over the bin's and the
+#: box's walls until the held part was pulled out of the grasp; a held part with two
+#: passengers turned out of the pads 20 cm into the carry, touching nothing but them.
 BUNDLE_LIFT_M = 0.06
 BUNDLE_SPACING_M = 0.01
 #: A failed pick within this distance of an instance's estimate puts that instance last.
@@ -2048,7 +2049,8 @@ def _carry_to_box(
     if travel_z > pos[2] + 0.005:
         ctl.move_to(np.array([pos[0], pos[1], travel_z]), yaw, spacing_m=0.01, rotation=rotation)
     yaw += turn
-    ctl.move_to(over, yaw, spacing_m=BUNDLE_SPACING_M if bundle else 0.02, rotation=rotation)
+    spacing = BUNDLE_SPACING_M if bundle else CARRY_SPACING_M
+    ctl.move_to(over, yaw, spacing_m=spacing, rotation=rotation)
     ctl.move_to(np.array([over[0], over[1], release_z]), yaw, spacing_m=0.01, rotation=rotation)
     if bundle and free:
         low = np.array([over[0], over[1], table_z + BUNDLE_FLOOR_GAP_M + below])
