@@ -40,12 +40,7 @@ PAD_SOLREF = (0.015, 1.0)
 PAD_SOLIMP = (0.6, 0.95, 0.002, 0.5, 2.0)
 PAD_MARGIN = 0.001
 PAD_FRICTION = (1.2, 0.01, 0.0002)
-# Rubber-tipped fingers (issue 13): friction 1.6 against the parts' 1.0 on the table. At 1.0
-# the fingertips' pull per newton of press only equalled the table's hold, and a push from
-# above could not drag a part lying flat by a wall. At 1.6 tuning bins 45-59 cleared 86/90
-# against 83/90 and the grasp benchmarks held (docs/bin.md, "Fingertips of rubber,
-# measured"); a part pressed near one end still tips rather than slides.
-FINGER_FRICTION = (1.6, 0.01, 0.0002)
+FINGER_FRICTION = (1.0, 0.01, 0.0002)
 # Wrist camera (RGB-D, device ``wrist_camera``; bin room, issue 13): on the hand body, 7 cm
 # beside the palm axis and 10 cm behind the pinch point, looking along the fingers (MuJoCo
 # cameras look along their -z, the hand body's -z is the fingers' direction), so the open
