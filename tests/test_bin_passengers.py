@@ -249,8 +249,8 @@ def test_a_bundle_is_carried_higher_and_slower_than_a_part_alone():
         """(lowest point of what is carried, spacing) of the move from the bin to the box."""
         hand = _TurningHand([0.05, -0.02, table_z + 0.16], 0.0)
         load = held if passengers is None else np.concatenate([held, passengers])
-        kw = {} if passengers is None else {"passengers": passengers}
-        assert binmod._carry_to_box(hand, held, table_z, None, box, placed=[], **kw) == ""
+        why = binmod._carry_to_box(hand, held, table_z, None, box, placed=[], passengers=passengers)
+        assert why == ""
         k = next(
             k for k, (pos, _) in enumerate(hand.path) if not np.allclose(pos[:2], [0.05, -0.02])
         )
