@@ -284,6 +284,9 @@ def test_failed_range_finder_is_served_by_stereo_points() -> None:
     assert stream.served_by == "Stereo_Points" and len(stream) > 200
     assert np.median(np.abs(stream.data[:, 2] - TABLE_Z)) < 1e-3
     assert devices["depth_camera"].reads == 0
+    # where the points were seen from: the two cameras' centres
+    centres = [left.camera_to_world[:3, 3], right.camera_to_world[:3, 3]]
+    np.testing.assert_allclose(snap.origins("Range_Points"), centres)
     # With stereo gone too, the depth camera serves.
     devices["stereo_left"].failed = True
     depth = np.full((H, W), 0.5)
@@ -298,7 +301,9 @@ def test_failed_range_finder_is_served_by_stereo_points() -> None:
         ),
     )
     snap = graph.snapshot(devices)
+    assert snap.origins("Range_Points").shape == (0, 3)  # not served yet: seen from nowhere
     assert snap.get("Range_Points").served_by == "Depth_Points"
+    np.testing.assert_allclose(snap.origins("Range_Points"), [(0, 0, TABLE_Z + 0.5)])
     devices["depth_camera"].failed = True
     with pytest.raises(SensorFailure, match="all 3 way"):
         graph.snapshot(devices).get("Range_Points")
@@ -324,6 +329,7 @@ def test_scene2_points_lie_on_the_objects() -> None:
         return np.minimum(d_box, d_sphere)
 
     graph = SensorGraph.from_dir()
+    origins: dict[str, np.ndarray] = {}
     with make_devices(world.model, world.data, np.random.default_rng(0)) as devices:
         results = {}
         for failed in ((), ("range_finder",)):
@@ -332,9 +338,17 @@ def test_scene2_points_lie_on_the_objects() -> None:
                 devices.set_fault(name, failed=True)
             snap = graph.snapshot(devices)
             results[snap.get("Range_Points").served_by] = snap.get("Range_Points").data
+            origins[snap.get("Range_Points").served_by] = snap.origins("Range_Points")
             if not failed:
                 spheres = snap.get("Sphere_Detector").data
+                origins["Sphere_Detector"] = snap.origins("Sphere_Detector")  # via its input
     assert set(results) == {"primary", "Stereo_Points"}
+    # the points were seen from the range finder's two mount sites, else the stereo cameras
+    sites = [world.data.site(m).xpos for m in ("range_finder_mount_0", "range_finder_mount_1")]
+    cams = [world.data.cam(c).xpos for c in ("stereo_left", "stereo_right")]
+    np.testing.assert_allclose(origins["primary"], sites, atol=1e-9)
+    np.testing.assert_allclose(origins["Sphere_Detector"], sites, atol=1e-9)
+    np.testing.assert_allclose(origins["Stereo_Points"], cams, atol=1e-9)
     for served_by, pts in results.items():
         near = (np.hypot(pts[:, 0] - cube_T[0, 3], pts[:, 1] - cube_T[1, 3]) < 0.033) & (
             pts[:, 2] > TABLE_Z + 0.005

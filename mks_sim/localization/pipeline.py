@@ -1016,6 +1016,7 @@ def localize_polyhedral(
     rep: Representation,
     rng: np.random.Generator,
     timing: dict[str, float],
+    viewpoints: FloatArray | None = None,
 ) -> tuple[list[PoseHypothesis], dict[str, Any]]:
     """The workstation's polyhedral path over a snapshot's representation (steps 4-6 of
     :func:`mks_sim.localization.workstation.localize_object`): spheres set aside, segments,
@@ -1024,7 +1025,8 @@ def localize_polyhedral(
     the table (polished first when it does not rest) and returned; otherwise the model's
     rotation-invariant Hough on its logical sensor, support faces for what stays
     unexplained, a final polish and restarts; returns (consistent hypotheses best first,
-    diagnostics)."""
+    diagnostics). ``viewpoints``: where the points were seen from (the consistency check's
+    facing test; None: any upward-ish face explains)."""
     extra: dict[str, Any] = {}
     points = rep.points
     table = rep.table
@@ -1060,7 +1062,7 @@ def localize_polyhedral(
         if hit is None or hit[0] is not h:
             c = consistency(
                 h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts,
-                surface=surface,
+                surface=surface, viewpoints=viewpoints,
             )  # fmt: skip
             hit = (h, _whole(c))
             checked[id(h)] = hit
@@ -1198,6 +1200,11 @@ def localize_polyhedral(
         # object points near it unexplained, ICP restarts from shifted and turned copies of
         # it, which compete.
         hops = _hop(candidates[order[0]], model, objects, d, rng)
+        # ... and from the runner-up: with the facing test a pose one wall off loses the
+        # points its far face explained and can rank below a pose turned end for end, while
+        # its hops find the true pose (generated L-bracket, tuning seed 1011)
+        if len(order) > 1:
+            hops += _hop(candidates[order[1]], model, objects, d, rng)
         for h in hops:
             candidates.append(h)
             checks.append(check(h))

@@ -417,7 +417,9 @@ def localize_object(
     elif kind == "freeform":
         hyps, extra = localize_freeform(model, rep, rng, timing)
     else:
-        hyps, extra = localize_polyhedral(model, entry, snap, sensor, rep, rng, timing)
+        views = snap.origins(POINTS_SENSOR)
+        diag["viewpoints"] = len(views)
+        hyps, extra = localize_polyhedral(model, entry, snap, sensor, rep, rng, timing, views)
     timing["processing"] = time.perf_counter() - t_proc
     diag.update(extra)
     diag["timing"] = timing

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from mks_sim.errors import DataError, DeviceFailure, NotFound, SensorFailure
 from mks_sim.fields import Stream
 from mks_sim.sensing.registry import get_acceptance, get_program
@@ -169,6 +171,26 @@ class Snapshot:
                 raise SensorFailure(sensor, str(exc)) from exc
         return self._representations[key]
 
+    def origins(self, sensor: str) -> np.ndarray:
+        """(K, 3) world positions the points of ``sensor`` were seen from: the optical
+        centres of the device readings the way that served it used (each range-finder
+        view's mount, each camera's centre; through input sensors too). Sensor
+        calibration, like the poses the programs reproject with; empty when ``sensor`` has
+        not been served or its readings carry no pose.
+
+        Raises:
+            NotFound: no such sensor.
+        """
+        spec = self.graph.sensor(sensor)
+        way = next((w for w in spec.ways if w.name == self._provenance.get(sensor)), None)
+        found: list[np.ndarray] = []
+        for name in () if way is None else way.inputs:
+            if name in self.graph:
+                found.extend(self.origins(name))
+            elif name in self._readings:
+                found.extend(_reading_origins(self._readings[name]))
+        return np.asarray(found, dtype=np.float64).reshape(-1, 3)
+
     def evaluate(self, names: Iterable[str]) -> dict[str, Stream]:
         """``get`` each sensor of ``names`` (inputs are evaluated on demand, so a failed input
         only matters to the ways that use it); raises on the first sensor that fails."""
@@ -246,3 +268,22 @@ class Snapshot:
                     spec.name, f"acceptance test {way.acceptance.test!r} rejected it: {why}"
                 )
         return stream
+
+
+def _reading_origins(reading: Any) -> list[np.ndarray]:
+    """The optical centres of one device reading (duck-typed: the sensing layer does not
+    import the devices): a range scan's ``sensor_to_world``, a camera frame's
+    ``camera_to_world``, a stereo frame's ``left_to_world`` and its right camera; a list of
+    readings (a range finder's views) gives each one's."""
+    if isinstance(reading, list | tuple):
+        return [o for r in reading for o in _reading_origins(r)]
+    for attr in ("sensor_to_world", "camera_to_world", "left_to_world"):
+        pose = getattr(reading, attr, None)
+        if pose is not None and np.shape(pose) == (4, 4):
+            pose = np.asarray(pose, dtype=np.float64)
+            out = [pose[:3, 3]]
+            right = getattr(reading, "right_to_left", None)
+            if attr == "left_to_world" and right is not None and np.shape(right) == (4, 4):
+                out.append((pose @ np.asarray(right, dtype=np.float64))[:3, 3])
+            return out
+    return []
