@@ -132,3 +132,27 @@ def test_after_step_re_senses_every_period_and_corrects_only_real_moves() -> Non
     a._tracking = False  # fingers closed: no more re-sensing
     a.controller.time = 2.0  # type: ignore[union-attr]
     assert not a.after_step() and len(a.relocalizations) == 7
+
+
+def test_a_pose_turned_faster_than_a_push_turns_it_is_ignored() -> None:
+    """Half a turn per second at most (30 degrees at least): the cube turned 45 degrees
+    (its largest turn modulo its symmetries) 0.2 s after the last estimate found is not
+    believed; the same turn seen 0.4 s after the last found one is (72 degrees allowed),
+    and 20 degrees at the next look is a move like the existing 10 degrees."""
+    from mks_sim.tasks.episode import PLAUSIBLE_MIN_TURN_DEG, PLAUSIBLE_TURN_DEG_S
+
+    assert PLAUSIBLE_TURN_DEG_S * 0.2 < 45.0 < PLAUSIBLE_TURN_DEG_S * 0.4
+    assert PLAUSIBLE_MIN_TURN_DEG < 45.0
+    estimates = [_moved(0.0, 45.0), None, _moved(0.0, 45.0), _moved(0.0, 65.0)]
+    a = _assembly(estimates)
+    flags = []
+    for k in range(1, 41):  # 20 ms control periods, looks at 0.2, 0.4, 0.6, 0.8 s
+        a.controller.time = 0.02 * k  # type: ignore[union-attr]
+        flags.append(a.after_step())
+    assert [r.found for r in a.relocalizations] == [True, False, True, True]
+    assert [r.plausible for r in a.relocalizations] == [False, True, True, True]
+    assert [r.corrected for r in a.relocalizations] == [False, False, True, True]
+    assert a.relocalizations[0].rotation_deg == pytest.approx(45.0)
+    assert a.relocalizations[3].rotation_deg == pytest.approx(20.0)
+    np.testing.assert_allclose(a.estimate, _moved(0.0, 65.0))
+    assert sum(flags) == 2
