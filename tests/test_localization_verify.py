@@ -376,6 +376,46 @@ def test_fixed_radius_sphere_fit_recovers_the_centre(compiled):
     assert fit_fixed_sphere(cloud, tree, centre + 0.2, radius, 0.002, compiled=compiled) is None
 
 
+def test_sphere_centre_hough_seeds_only_cells_near_the_fullest() -> None:
+    """Two 3 cm caps, one a fifth as well seen as the other, and a noisy box face whose
+    ``p - r n`` votes scatter: every seed is a cell holding at least 10 votes and a quarter
+    of the fullest cell's (counted here cell by cell); the well-seen sphere's centre comes
+    first; the weak cap is a seed only when the floor is lowered below its share."""
+    from collections import Counter
+
+    from mks_sim.geometry.points import fibonacci_sphere
+    from mks_sim.localization.hypotheses import SPHERE_MIN_VOTE_FRACTION, sphere_centre_hough
+
+    rng = np.random.default_rng(3)
+    radius = 0.03
+    centres = np.array([[0.1, -0.05, 0.78], [-0.1, 0.06, 0.78]])
+    dirs = fibonacci_sphere(4000)
+    strong = dirs[dirs[:, 2] > 0.2]
+    weak = strong[rng.random(len(strong)) < 0.2]
+    pts = [centres[0] + radius * strong, centres[1] + radius * weak]
+    nrm = [strong, weak]
+    face = np.column_stack(
+        [rng.uniform(-0.03, 0.03, 1500), rng.uniform(0.1, 0.16, 1500), np.full(1500, 0.8)]
+    )
+    tilt = rng.normal(0, 0.15, (1500, 3)) + [0.0, 0.0, 1.0]
+    pts.append(face)
+    nrm.append(tilt / np.linalg.norm(tilt, axis=1, keepdims=True))
+    P, N = np.vstack(pts), np.vstack(nrm)
+    seeds = sphere_centre_hough(P, radius, N)
+    assert np.linalg.norm(seeds[0] - centres[0]) < 0.004
+    votes = P - radius * N
+    keys = [tuple(k) for k in np.floor(votes / (radius / 5.0)).astype(np.int64)]
+    cells = Counter(keys)
+    floor = max(10, SPHERE_MIN_VOTE_FRACTION * max(cells.values()))
+    full = [np.mean([v for v, k in zip(votes, keys, strict=True) if k == cell], axis=0)
+            for cell, n in cells.items() if n >= floor]  # fmt: skip
+    for c in seeds:  # each seed is the mean of the votes of one cell full enough
+        assert min(np.linalg.norm(m - c) for m in full) < 1e-9
+    assert all(np.linalg.norm(c - centres[1]) > 0.004 for c in seeds)
+    low = sphere_centre_hough(P, radius, N, min_fraction=0.05)
+    assert any(np.linalg.norm(c - centres[1]) < 0.004 for c in low)
+
+
 def test_corner_correspondences_take_the_first_corner_per_detected_vertex():
     """Brute force over random rows: each detected vertex hit (index < n) paired with the
     first model corner that landed on it, in detected-vertex order; misses (n) dropped."""

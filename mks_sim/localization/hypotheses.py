@@ -361,20 +361,32 @@ def score_spheres(
     return out
 
 
+#: A sphere-centre Hough cell with fewer votes than this fraction of the fullest cell's is
+#: no seed. Scene 2 healthy (tuning seeds 0-5): the sphere's cell held 350-700 votes, every
+#: other peak at most 84, and all of those failed the fit's check (~1 ms each); with the
+#: stereo pair's noisier normals the peaks spread (212, 165, 143, 86, ...) and stay seeds.
+SPHERE_MIN_VOTE_FRACTION = 0.25
+
+
 def sphere_centre_hough(
-    objects: FloatArray, radius: float, normals: FloatArray, peaks: int = 4
+    objects: FloatArray,
+    radius: float,
+    normals: FloatArray,
+    peaks: int = 4,
+    min_fraction: float = SPHERE_MIN_VOTE_FRACTION,
 ) -> list[FloatArray]:
     """Centres voted by ``p - r n`` (outward normals of the representation), the fullest
-    cells."""
+    cells (at least 10 votes and ``min_fraction`` of the fullest cell's)."""
     if len(objects) < 50:
         return []
     votes = objects - radius * normals
     cell = radius / 5.0
     # the cells in lexicographic order (ties among peaks as np.unique of the rows breaks them)
     _, inv, counts = unique_cells(np.floor(votes / cell).astype(np.int64), first=False)
+    floor = max(10.0, min_fraction * float(counts.max())) if len(counts) else 10.0
     out: list[FloatArray] = []
     for k in np.argsort(-counts)[: peaks * 3]:
-        if counts[k] < 10 or len(out) >= peaks:
+        if counts[k] < floor or len(out) >= peaks:
             break
         c = votes[inv == k].mean(axis=0)
         if all(np.linalg.norm(c - o) > radius / 2 for o in out):
