@@ -60,10 +60,10 @@ PLAUSIBLE_DZ_M = 0.01
 PLAUSIBLE_TILT_DEG = 10.0
 PLAUSIBLE_SPEED_M_S = 0.3
 PLAUSIBLE_MIN_SHIFT_M = 0.06
-# ... and turns (modulo its symmetries) at most half a turn per second
-# since the last estimate found (30 degrees at least): the generated L-bracket's re-sensing
-# gave a pose turned end for end (179 deg, 27 mm off) at some looks, the true one at the
-# others (tuning seed 1011), and every such flip re-planned until no correction was left.
+# ... and turns (modulo its symmetries) at most half a turn per second since the last
+# estimate found (30 degrees at least): the generated L-bracket's re-sensing gave a pose
+# turned end for end (179 deg, 27 mm off) at some looks, the true one at the others (tuning
+# seed 1011), and every such flip re-planned until no correction was left.
 PLAUSIBLE_TURN_DEG_S = 180.0
 PLAUSIBLE_MIN_TURN_DEG = 30.0
 MAX_CORRECTIONS = 4
