@@ -49,6 +49,12 @@ def _floor(z: float = TABLE_Z) -> np.ndarray:
     return np.column_stack([x.ravel(), y.ravel(), np.full(x.size, z)])
 
 
+def _held_truth(pinch: np.ndarray, shift_m: float, turn_deg: float) -> np.ndarray:
+    """Where the held box of :func:`_scene` really hangs: its estimate moved ``shift_m``
+    along x, turned ``turn_deg`` about the vertical and tilted 3 degrees."""
+    return _pose(pinch - [0.0, 0.0, 0.02] + [shift_m, 0.0, 0.0], 35.0 + turn_deg, 3.0)
+
+
 def _scene(shift_m: float, turn_deg: float, passenger: bool):
     """A picked box held at the travel height, its estimate ``shift_m`` and ``turn_deg`` off
     its true pose (turned in the grasp), a box left lying in the pile and maybe a passenger
@@ -65,10 +71,11 @@ def _scene(shift_m: float, turn_deg: float, passenger: bool):
     )
     pinch = np.array([-0.02, 0.02, TABLE_Z + 0.16])
     estimate = _pose(pinch - [0.0, 0.0, 0.02], 35.0)
-    truth = _pose(pinch - [0.0, 0.0, 0.02] + [shift_m, 0.0, 0.0], 35.0 + turn_deg, 3.0)
+    truth = _held_truth(pinch, shift_m, turn_deg)
     rider = _posed(seen, _pose(pinch + [0.01, 0.09, -0.07], -10.0, 25.0))
     now = [_floor()[np.linalg.norm(_floor()[:, :2] - pinch[:2], axis=1) > 0.07]]
-    now += [_posed(seen, lying), _posed(seen, truth)]
+    # lifted above the pile, the held box shows a third side to the scanner's two mounts
+    now += [_posed(seen, lying), _posed(np.concatenate([seen, faces["-y"]]), truth)]
     if passenger:
         now.append(rider)
     noise = np.random.default_rng(1).normal(0.0, 0.0005, (sum(map(len, now)), 3))
@@ -94,6 +101,84 @@ def test_no_passenger_is_seen_when_the_held_part_is_alone(shift_m, turn_deg):
     now, before, samples, estimate, pinch, _ = _scene(shift_m, turn_deg, passenger=False)
     got = binmod.passenger_points(now, before, samples, estimate, pinch, TABLE_Z)
     assert got.shape == (0, 3)
+
+
+def _pose_error(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
+    """(mm, degrees) between two poses."""
+    R = A[:3, :3].T @ B[:3, :3]
+    cos = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    return 1000.0 * float(np.linalg.norm(A[:3, 3] - B[:3, 3])), float(np.degrees(np.arccos(cos)))
+
+
+@pytest.mark.parametrize("passenger", [False, True])
+@pytest.mark.parametrize("shift_m, turn_deg", [(0.0, 0.0), (0.015, 8.0), (0.025, -6.0)])
+def test_the_held_part_is_refined_on_its_points_seen_at_the_travel_height(
+    shift_m, turn_deg, passenger
+):
+    """The held box turned and slid in the grasp (up to 25 mm and 8 degrees from the
+    estimate it was grasped at): the pose returned is within 2 mm and 1 degree of where it
+    really hangs (the scene's truth; the box is placed 15 mm inside the walls,
+    PLACE_MARGIN_M), with or without a passenger beside it; the passengers' points are those
+    of :func:`passenger_points`."""
+    now, before, samples, estimate, pinch, _ = _scene(shift_m, turn_deg, passenger)
+    held, riders = binmod.held_and_passengers(now, before, samples, estimate, pinch, TABLE_Z)
+    assert held is not None
+    mm, deg = _pose_error(held, _held_truth(pinch, shift_m, turn_deg))
+    assert mm < 2.0 and deg < 1.0
+    assert _pose_error(estimate, _held_truth(pinch, shift_m, turn_deg))[0] >= 1000 * shift_m - 1e-6
+    want = binmod.passenger_points(now, before, samples, estimate, pinch, TABLE_Z)
+    assert np.array_equal(riders, want)
+    assert (len(riders) > 0) == passenger
+
+
+def test_too_few_points_of_the_held_part_keep_its_estimate():
+    """Fewer than HELD_FIT_MIN_POINTS lifted points (the hand hides the part, or the
+    scanner's view misses it): no refined pose, the estimate it was grasped at is carried."""
+    now, before, samples, estimate, pinch, _ = _scene(0.015, 8.0, passenger=False)
+    lifted = binmod.lifted_points(now, before, pinch, TABLE_Z)
+    keep = np.flatnonzero(lifted)[: binmod.HELD_FIT_MIN_POINTS - 1]
+    sparse_now = np.concatenate([now[~lifted], now[keep]])
+    held, riders = binmod.held_and_passengers(sparse_now, before, samples, estimate, pinch, TABLE_Z)
+    assert held is None and riders.shape == (0, 3)
+    held, _ = binmod.held_and_passengers(now, before, samples, estimate, pinch, TABLE_Z)
+    assert held is not None  # all of them: refined
+
+
+def test_the_picker_carries_the_held_part_as_seen():
+    """``BinPicker._passengers`` on one range finder reading at the travel height returns
+    the held part's pose in the pinch frame as it really hangs (the scene's truth moved into
+    the hand's frame, within 2 mm and 1 degree), which ``pick`` carries to the box instead of
+    the estimate; without a reading (the range finder failed), nothing."""
+    from types import SimpleNamespace
+
+    from mks_sim.errors import DeviceFailure
+
+    now, before, samples, estimate, pinch, _ = _scene(0.02, 8.0, passenger=False)
+    hand = _TurningHand(pinch, np.radians(35.0))
+    P = np.eye(4)
+    P[:3, :3], P[:3, 3] = hand.pinch_rotation(), hand.pinch_pos()
+
+    class Scanner:
+        failed = False
+
+        def read(self):
+            if self.failed:
+                raise DeviceFailure("range_finder", "no reading")
+            return [SimpleNamespace(hit_points=now, view=0)]
+
+    robot = object.__new__(binmod.BinPicker)
+    scanner = Scanner()
+    robot.devices, robot.ctl, robot.samples = {"range_finder": scanner}, hand, samples
+    robot.sensed, robot.table_z = SimpleNamespace(scene_points=before), TABLE_Z
+    robot.faults_seen = {}
+    riders, seen = robot._passengers(np.linalg.inv(P) @ estimate)
+    assert riders.shape == (0, 3) and seen is not None
+    mm, deg = _pose_error(P @ seen, _held_truth(pinch, 0.02, 8.0))
+    assert mm < 2.0 and deg < 1.0
+    scanner.failed = True
+    riders, seen = robot._passengers(np.linalg.inv(P) @ estimate)
+    assert riders.shape == (0, 3) and seen is None
+    assert "range_finder" in robot.faults_seen
 
 
 def test_points_not_lifted_are_no_passenger():
