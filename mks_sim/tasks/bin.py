@@ -1902,9 +1902,9 @@ PASSENGER_POINTS = 150
 #: points, :func:`held_and_passengers`) when the refined pose has at least this many of them
 #: within HELD_OWN_M, and no fewer than the estimate it was grasped at. A part turns and
 #: slides in the grasp: the six lifts of tuning bin 19 (simulator truth, diagnosis only)
-#: carried estimates 2-33 mm off the part as it hung, the refined poses 0.1-5 mm. At the
-#: 33 mm one (8 deg; refined 5 mm, 3 deg) the part was placed by the estimate and fell back
-#: into the bin, and a passenger seen as 18 points came to rest outside the box.
+#: carried estimates 2-33 mm off the part as it hung, the refined poses 0.1-5 mm. The 33 mm
+#: one (8 deg; refined 5 mm, 3 deg) ended `not in the box`: the held part was back in the
+#: bin, and a second part lifted with it, seen as 18 points, lay outside the box.
 HELD_FIT_MIN_POINTS = 50
 
 
