@@ -375,7 +375,7 @@ CARRY_MARGIN_M = 0.02
 #: 4001, 4004: 5 of 8 failed picks). Not lower: the parts already in the box are not sensed,
 #: and a part pressed into them by the arm overflowed the simulator's contacts (seed 4001).
 RELEASE_GAP_M = 0.015
-#: ... except a bundle (parts lifted with the held one, :func:`passenger_points`) whose place
+#: ... except a bundle (parts lifted with the held one, :func:`held_and_passengers`) whose place
 #: overlaps no part let go before (the robot's own record): it goes on down until its
 #: lowest point is this high above the box's floor (the release gap and 15 mm for an
 #: estimate a part turned in the grasp). Passengers lie on or beside the held part and were
@@ -438,7 +438,7 @@ class Pick:
         tilt_deg: how far the grasp's approach was from straight down (0: top-down; a part
             on its side or upside down is grasped tilted).
         passenger_points: points of other parts the range finder saw lifted with the held
-            one at the travel height (:func:`passenger_points`; 0: none seen).
+            one at the travel height (:func:`held_and_passengers`; 0: none seen).
         unsure: the instance was one whose pose its points do not pin down or see through
             (``Instances.unsure``), picked because no other was left
             (:meth:`BinPicker.unsure_left`).
@@ -1958,16 +1958,17 @@ def _fit_held(samples: np.ndarray, T: np.ndarray, points: np.ndarray) -> np.ndar
     return T
 
 
-def passenger_points(
+def held_and_passengers(
     points_world: np.ndarray,
     before_world: np.ndarray,
     samples: np.ndarray,
     held_world: np.ndarray,
     pinch_world: np.ndarray,
     table_z: float,
-) -> np.ndarray:
-    """(K, 3) the points of parts lifted with the held one (passengers), world frame; (0, 3)
-    when fewer than :data:`PASSENGER_POINTS` (none seen).
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """(the held part's pose refined on its points seen, world frame, or None; (K, 3) the
+    points of parts lifted with the held one (passengers), world frame, (0, 3) when fewer
+    than :data:`PASSENGER_POINTS` (none seen)).
 
     Args:
         points_world: (N, 3) sensed with the hand at the travel height (the scanner
@@ -1979,30 +1980,12 @@ def passenger_points(
         pinch_world: (3,) the pinch point now.
         table_z: the table top.
 
-    The lifted points (:func:`lifted_points`) less those within :data:`HELD_OWN_M` of the
-    held part's surface, its estimate refined on them (:func:`_fit_held`).
-    """
-    return held_and_passengers(
-        points_world, before_world, samples, held_world, pinch_world, table_z
-    )[1]
-
-
-def held_and_passengers(
-    points_world: np.ndarray,
-    before_world: np.ndarray,
-    samples: np.ndarray,
-    held_world: np.ndarray,
-    pinch_world: np.ndarray,
-    table_z: float,
-) -> tuple[np.ndarray | None, np.ndarray]:
-    """(the held part's pose refined on its points seen, world frame, or None; (K, 3) the
-    passengers' points, :func:`passenger_points`).
-
     The lifted points (:func:`lifted_points`) fit the model's surface ``samples`` from the
-    estimate ``held_world`` (:func:`_fit_held`); the refined pose is returned when it has at
+    estimate ``held_world`` (:func:`_fit_held`). The refined pose is returned when it has at
     least :data:`HELD_FIT_MIN_POINTS` of them within :data:`HELD_OWN_M` and no fewer than the
     estimate has (else None: too little of the part seen to say more). The lifted points
-    farther from the refined pose are the passengers'."""
+    farther than :data:`HELD_OWN_M` from the refined pose are the passengers'.
+    """
     P = np.asarray(points_world, dtype=float).reshape(-1, 3)
     P = P[np.all(np.isfinite(P), axis=1)]
     up = P[lifted_points(P, before_world, pinch_world, table_z)]
@@ -2041,7 +2024,7 @@ def _carry_to_box(
             before (:func:`place_middle`); this part's is appended once its place is chosen
             (also when it is then dropped on the way). None: the box's centre.
         passengers: (K, 3) points of parts lifted with the held one, in the pinch frame
-            (:func:`passenger_points`): the bundle's lowest point, footprint and place are
+            (:func:`held_and_passengers`): the bundle's lowest point, footprint and place are
             those of the held part and them together.
 
     The part's middle goes over its place in the box with its lowest point (or the
