@@ -1996,7 +1996,7 @@ def held_and_passengers(
     before = int(_near_surface(samples, held_world, up, HELD_OWN_M).sum())
     held = T if int(own.sum()) >= max(HELD_FIT_MIN_POINTS, before) else None
     left = up[~own]
-    if len(up) < PASSENGER_POINTS or len(left) < PASSENGER_POINTS:
+    if len(left) < PASSENGER_POINTS:  # left is a subset of up
         return held, np.empty((0, 3))
     return held, left
 
