@@ -151,14 +151,17 @@ def test_a_push_goes_away_from_the_nearest_wall_for_turned_parts():
     assert pushed > 20
 
 
-def _stub_clear_bin(monkeypatch, moves: bool):
+def _stub_clear_bin(monkeypatch, moves: bool, flange: bool = False):
     """clear_bin with a stub robot: one part 5 mm from the -x wall, a pair only without
-    obstacles; a push moves it to the middle (``moves``) or leaves it where it was."""
+    obstacles (and, with ``flange``, in the "partial" round); a push moves it to the middle
+    (``moves``) or leaves it where it was."""
     part = _box((-0.05, -0.03, 0.0), (0.05, 0.03, 0.03))
     robots: list = []
     pushes: list = []
 
     class Robot(StubPicker):
+        instances = robots
+
         def __init__(self, world, devices, **kw):
             super().__init__(world, devices)
             robots.append(self)
@@ -173,7 +176,8 @@ def _stub_clear_bin(monkeypatch, moves: bool):
             return [] if self.in_box else [SimpleNamespace(matrix=T, score=1.0)]
 
         def grasps(self, i, obstacles="all"):
-            free = self.at[0] > -0.1
+            free = self.at[0] > -0.1 or (flange and obstacles == "partial")
+            self.tried.append(obstacles)
             return ["grasp"] if obstacles == "none" or free else []
 
         def pick(self, cands, index, perturb, instance=None):
@@ -204,6 +208,18 @@ def test_a_part_that_stays_at_the_wall_is_pushed_at_most_twice(monkeypatch):
     assert len(pushes) == binmod.PUSHES_PER_INSTANCE == rec["pushes"]
     assert [p["failure"] for p in rec["picks"]][:-1] == [binmod.PUSHED] * len(pushes)
     assert rec["stopped"] == "no collision-free grasp for any instance found", rec
+
+
+def test_pads_reaching_over_an_edge_come_after_the_pushes(monkeypatch):
+    """A part the pushes leave at the wall, with a grasp only in the "partial" round: that
+    round is asked for only once no push is left, and its grasp is picked."""
+    rec, pushes = _stub_clear_bin(monkeypatch, moves=False, flange=True)
+    assert [p["failure"] for p in rec["picks"]] == [binmod.PUSHED] * 2 + [""], rec
+    assert rec["picked"] == 1 and rec["stopped"] == "nothing found"
+    asked = binmod.BinPicker.instances[-1].tried
+    first = asked.index("partial")
+    assert asked.count("partial") == 1 and "partial" not in asked[:first]
+    assert len(pushes) == binmod.PUSHES_PER_INSTANCE
 
 
 @pytest.mark.slow
@@ -372,3 +388,36 @@ def test_a_part_with_no_pair_is_pushed_only_when_it_leans(monkeypatch):
         assert push is not None and push[0] == 1, order
         np.testing.assert_allclose(push[1].direction, [1.0, 0.0])
     assert binmod._push_candidate(robot, found[:1], [0], []) is None
+
+
+@pytest.mark.slow
+def test_a_part_with_its_step_against_a_wall_is_picked_by_its_plate():
+    """Tuning bin 16's last part, its stall replayed (two pushes had left it where it was):
+    upside down, its 22 mm step 14 mm from the -x wall. No round but "partial" has a grasp
+    for it; the partial round's grasp (the pads reaching over the 8 mm plate's edge) lifts it
+    out, and it ends in the output box (ground truth, evaluation only)."""
+    from _bin_replay import replayed_bin
+
+    with replayed_bin(16, _BIN16_QPOS) as robot:
+        found = robot.sense()
+        assert len(found) == 1
+        for obstacles in ("all", "fixed", "tight", "touch"):
+            assert not robot.grasps(0, obstacles=obstacles), obstacles
+        chosen = binmod._partial_grasp(robot, [0], [False])
+        assert chosen is not None
+        i, cands = chosen
+        body = robot.body_of(found[i].matrix)
+        ok, why = robot.pick(cands, 0, None, instance=i)
+        assert ok and binmod.in_output_box(robot.world, body), why
+
+
+_BIN16_QPOS = (
+    -1.10740938, 2.78642962, 1.17071268, 3.72525907, -1.84614727, -2.09524462, 0.14960295,
+    0.14960300, 0.14960291, -0.24442701, 0.26271577, 0.80264552, 0.22185395, 0.22902597,
+    -0.58590511, -0.74501217, -0.11546597, 0.04176076, 0.77789025, -0.02659880, 0.90118900,
+    0.42912456, 0.05479964, -0.26196068, 0.21020952, 0.77585304, 0.14906096, 0.01913375,
+    0.08850316, 0.98467351, -0.29028999, 0.13044187, 0.77998985, 0.00633425, 0.00646794,
+    0.70746384, 0.70669156, -0.35618594, 0.25341916, 0.75000372, 0.15930578, -0.00148046,
+    -0.00022862, -0.98722815, -0.25509182, 0.18345604, 0.75001752, -0.03908837, 0.00230470,
+    -0.00095201, 0.99923265,
+)  # fmt: skip

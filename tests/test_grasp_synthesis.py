@@ -378,3 +378,18 @@ def test_a_tighter_finger_clearance_admits_grasps_beside_a_wall() -> None:
     assert not any(abs(c.axis_world[0]) > 0.99 for c in default)
     assert along_x
     assert all(0.012 <= _tip_distance_to(c, wall) < grasp.FINGER_CLEARANCE_M for c in along_x)
+
+
+def test_a_plate_thinner_than_the_pad_is_pinched_only_when_pads_may_reach_over_it() -> None:
+    """A plate 8 mm thick lying flat: no top-down pinch covers the whole pad (the surface 9 mm
+    above its centre); with ``pad_cover_m`` = 3 mm there are pinches, each contact on the
+    plate's sides (brute force, :func:`_check`) and at least 3 mm below its top."""
+    obj = _object(box_mesh((0.12, 0.05, 0.008)), min_clearance_m=0.009)
+    T = _resting(obj.mesh, np.eye(3), (0.0, 0.1))
+    assert synthesize_grasps(obj, T, table_z=TABLE_Z, max_tilt_deg=0) == []
+    cands = synthesize_grasps(obj, T, table_z=TABLE_Z, max_tilt_deg=0, pad_cover_m=0.003)
+    assert cands
+    _check(obj, T, cands)
+    for c in cands:
+        contact_z = np.asarray(c.contacts_world)[:, 2] - TABLE_Z
+        assert np.all(contact_z + 0.003 <= 0.008 + grasp.PROBE_TOL_M)

@@ -902,9 +902,11 @@ class BinPicker:
                 part that may move); ``"touch"``: the same at :data:`TOUCH_CLEARANCE_M`
                 (the fingertips may graze a wall); ``"none"``. In every round but
                 ``"none"``, top-down candidates whose open fingers would come down on a
-                wall (:func:`walls_block`) are left out.
+                wall (:func:`walls_block`) are left out. ``"partial"``: as ``"touch"``,
+                and the pads may reach over a face's top edge (:data:`PARTIAL_PAD_COVER_M`:
+                a thin flange is pinched).
         """
-        from mks_sim.tasks.grasp import FINGER_CLEARANCE_M, synthesize_grasps
+        from mks_sim.tasks.grasp import FINGER_CLEARANCE_M, PAD_COVER_M, synthesize_grasps
 
         memo = self._grasp_memo
         if memo is not None and memo[0] is self.sensed and memo[1:3] == (i, obstacles):
@@ -915,16 +917,17 @@ class BinPicker:
             obs = grasp_obstacles(
                 self.sensed, i, self.samples, self.table_z, parts=obstacles == "all"
             )
-        clearance = {"tight": TIGHT_CLEARANCE_M, "touch": TOUCH_CLEARANCE_M}.get(
-            obstacles, FINGER_CLEARANCE_M
-        )
+        clearance = {
+            "tight": TIGHT_CLEARANCE_M, "touch": TOUCH_CLEARANCE_M, "partial": TOUCH_CLEARANCE_M
+        }.get(obstacles, FINGER_CLEARANCE_M)  # fmt: skip
         cands = synthesize_grasps(
             self.obj, T, table_z=self.table_z, obstacles=obs, rng=self.rng,
             preferred_yaw=self.ctl.pinch_yaw(), finger_clearance_m=clearance,
             min_width_m=BIN_MIN_WIDTH_M, max_face_lean_deg=BIN_MAX_FACE_LEAN_DEG,
+            pad_cover_m=PARTIAL_PAD_COVER_M if obstacles == "partial" else PAD_COVER_M,
         )  # fmt: skip
         if obstacles != "none":  # the walls are rigid: no round lets the fingers onto them
-            over = TOUCH_WALL_OVERLAP_M if obstacles == "touch" else 0.0
+            over = TOUCH_WALL_OVERLAP_M if obstacles in ("touch", "partial") else 0.0
             if self.region == "table":
                 walls = containers(self.world)
                 blocked = [walls_block_outside(c, walls, self.table_z, over) for c in cands]
@@ -1113,7 +1116,9 @@ def clear_bin(
     but one with an antipodal pair, or one that leans (:func:`leans`), lies against a wall,
     it is pushed away from the wall (:func:`plan_push`, at most
     :data:`PUSHES_PER_INSTANCE` times per part and :data:`PUSHES_PER_BIN` per bin),
-    recorded as a pick that failed ``pushed``, and the bin is sensed again.
+    recorded as a pick that failed ``pushed``, and the bin is sensed again. When no push is
+    left either, a grasp whose pads reach over a face's top edge is tried
+    (:func:`_partial_grasp`).
 
     Args:
         world: the bin world (:func:`bin_world`).
@@ -1228,6 +1233,9 @@ def clear_bin(
                     break
                 continue
         if chosen is None:
+            # last of all: pads that reach over a face's top edge (a thin flange)
+            chosen = _partial_grasp(robot, order, near_failed)
+        if chosen is None:
             why = f"no grasp ({blocked} blocked by obstacles, {no_pair} without a pair)"
             dt = time.perf_counter() - t0
             picks.append(
@@ -1304,7 +1312,8 @@ def _choose_grasp(
     fingertips may pass the walls closer (a part lying against a wall); last they may graze
     them, the instances not failed on first, then those failed on (the bin stops otherwise:
     tuning bin 1's last part, upside down 77 mm from a wall, failed once and was left with
-    2-5 candidates at the grazing clearance).
+    2-5 candidates at the grazing clearance). The pads reaching over a face's top edge come
+    after all of these, and after a push (:func:`_partial_grasp`).
 
     With ``clear`` (``(i, candidates) -> candidates``, :meth:`BinPicker.clear_of_neighbours`:
     those whose open fingers do not come down on a neighbour, first, or [] when none does
@@ -1342,12 +1351,37 @@ def _choose_grasp(
     return None, blocked, no_pair
 
 
+def _partial_grasp(
+    robot: Any, order: Sequence[int], near_failed: Sequence[bool]
+) -> tuple[int, list[Any]] | None:
+    """The first instance (those not failed on first) with candidates in the ``"partial"``
+    round (:meth:`BinPicker.grasps`: the pads may reach over a face's top edge), in up to
+    1 + :data:`GRASP_REDRAWS` draws of the synthesis, and them; or None.
+
+    :func:`clear_bin` asks for these last of all, when no other round has a grasp and no
+    push is left: a part lying with its tall end against a wall has its only whole-pad
+    pinches there (the industrial part's 22 mm step; tuning bins 14 and 16, each stopped
+    with the part left after two pushes that did not move it)."""
+    last = [i for i in order if not near_failed[i]] + [i for i in order if near_failed[i]]
+    for k in range(1 + GRASP_REDRAWS):
+        if k:
+            robot.redraw()
+        for i in last:
+            if cands := robot.grasps(i, obstacles="partial"):
+                return i, cands
+    return None
+
+
 #: Fingertips may pass this close to what no instance explains (the bin's walls: rigid and
 #: where they were sensed) in the last planning round; the fingertip is ~10 mm thick.
 TIGHT_CLEARANCE_M = 0.012
 #: ... and this close in a last round, once per instance (a fingertip's half thickness and
 #: 2 mm: the fingertip may graze the wall; a part against a wall is otherwise left in the bin).
 TOUCH_CLEARANCE_M = 0.007
+#: In the round after that ("partial"), a pad need only have the surface this far above its
+#: centre (the whole pad: grasp.PAD_COVER_M, 9 mm): a face thinner than the 15 mm pad, a
+#: flange, may be pinched with the pad reaching over its top edge.
+PARTIAL_PAD_COVER_M = 0.003
 #: ... where an open finger's footprint (:func:`walls_block`) may reach this far over a
 #: wall's inner face (its discs hold the fingers loosely, by up to 6 mm).
 TOUCH_WALL_OVERLAP_M = 0.003

@@ -220,6 +220,8 @@ PAD_TOP_ABOVE_CENTRE_M = 0.007
 # The top probe sits this much higher still, so a pad within the probe tolerance of an edge
 # does not pass for one on the face.
 PAD_TOP_MARGIN_M = 0.002
+# How far above a pad's centre the surface must reach by default: the whole pad on the face.
+PAD_COVER_M = PAD_TOP_ABOVE_CENTRE_M + PAD_TOP_MARGIN_M
 # Half the pad's width across the closing axis that must lie on the face (pads are ~13 mm).
 PAD_HALF_WIDTH_M = 0.0065
 # Where along the closing direction (m, + = further in) a pad may meet the surface: a curved
@@ -404,6 +406,7 @@ def synthesize_grasps(
     finger_clearance_m: float = FINGER_CLEARANCE_M,
     min_width_m: float = MIN_WIDTH_M,
     max_face_lean_deg: float = MAX_FACE_LEAN_DEG,
+    pad_cover_m: float = PAD_COVER_M,
 ) -> list[GraspCandidate]:
     """Antipodal grasps of ``obj`` at ``object_to_world``: top-down first, then tilted.
 
@@ -430,6 +433,9 @@ def synthesize_grasps(
         min_width_m: narrowest pinch (default :data:`MIN_WIDTH_M`).
         max_face_lean_deg: a top-down pinch's contact faces lean at most this far from the
             vertical (default :data:`MAX_FACE_LEAN_DEG`).
+        pad_cover_m: the surface must reach this far above each pad's centre, toward the
+            palm (default :data:`PAD_COVER_M`: the whole pad on the face). Less lets a pad
+            reach over the face's top edge: a flange thinner than the pad can be pinched.
 
     Returns:
         Candidates: the top-down ones best first, then the tilted ones best first (a
@@ -460,7 +466,7 @@ def synthesize_grasps(
     p_world, n_world = p_world[keep], n_world[keep]
     # Cheap pre-check per point (the full pad check runs per candidate below): the surface
     # reaches the pad's top edge above the contact.
-    top = _reaches_top(mesh, R, t, p_world, n_world)
+    top = _reaches_top(mesh, R, t, p_world, n_world, pad_cover_m)
     p_world, n_world = p_world[top], n_world[top]
 
     # Pairs (i, j): i = fingers 2/3 side, j = finger 1 side, closing axis d from i to j;
@@ -485,7 +491,7 @@ def synthesize_grasps(
             obj, R, t, table_z=table_z, own=own, obs=obs, cos_cone=cos_cone,
             max_tilt=math.radians(max_tilt_deg), n_samples=n_samples,
             preferred_yaw=preferred_yaw, limit=max_tilted, finger_clearance=finger_clearance_m,
-            min_width_m=min_width_m,
+            min_width_m=min_width_m, pad_cover_m=pad_cover_m,
         )  # fmt: skip
     if len(ii) == 0:
         return tilted
@@ -517,7 +523,7 @@ def synthesize_grasps(
         ok &= _under_palm(pinch[b], yaw[b], own) == 0
         ok &= _tip_hits(tips, pinch[b, 2], obs, finger_clearance_m) == 0
         b = b[ok]
-        ok = _pads_supported(mesh, R, t, p_world, n_world, f1[b], f23[b], yaw[b])
+        ok = _pads_supported(mesh, R, t, p_world, n_world, f1[b], f23[b], yaw[b], None, pad_cover_m)
         kept.extend(int(k) for k in b[ok])
     sel = kept[:max_candidates]
     out = [
@@ -551,6 +557,7 @@ def _tilted_grasps(
     limit: int,
     finger_clearance: float = FINGER_CLEARANCE_M,
     min_width_m: float = MIN_WIDTH_M,
+    pad_cover_m: float = PAD_COVER_M,
 ) -> list[GraspCandidate]:
     """Grasps whose approach leaves the vertical (at most ``max_tilt`` rad), best first.
 
@@ -641,7 +648,7 @@ def _tilted_grasps(
     while start < len(order) and len(kept) < limit:
         b = order[start : start + batch]
         start, batch = start + batch, 2 * batch
-        b = b[_pads_supported(mesh, R, t, p_w, n_w, f1[b], f23[b], yaw[b], hand[b])]
+        b = b[_pads_supported(mesh, R, t, p_w, n_w, f1[b], f23[b], yaw[b], hand[b], pad_cover_m)]
         tips = _tips_hand(aperture[b])  # (k, 3, 3) hand frame
         ok = ~_sweep_hits(hand[b], pinch[b], tips, own_tree, SELF_CLEARANCE_M)
         ok &= ~_sweep_hits(hand[b], pinch[b], tips, obs_tree, finger_clearance)
@@ -717,19 +724,20 @@ def _pads_supported(
     f23: np.ndarray,
     yaw: np.ndarray,
     hand: np.ndarray | None = None,
+    cover_m: float = PAD_COVER_M,
 ) -> np.ndarray:
     """(K,) both contacts carry a pad: the contact, the pad's sides across the closing axis
-    and the same three points at its top edge (toward the palm) lie on the surface, each
+    and the same three points ``cover_m`` toward the palm (its top edge) lie on the surface, each
     where the pad is or shifted along the closing direction by one of :data:`PAD_DEPTHS_M`
     (a curved or leaning face). ``hand`` (K, 3, 3): the hand's rotations (tilted grasps);
     None: top-down at ``yaw``."""
     if hand is None:
         across = np.column_stack([np.sin(yaw), -np.cos(yaw), np.zeros(len(yaw))])  # site y
         axis = np.column_stack([np.cos(yaw), np.sin(yaw), np.zeros(len(yaw))])  # site x
-        up: np.ndarray = np.array([0.0, 0.0, PAD_TOP_ABOVE_CENTRE_M + PAD_TOP_MARGIN_M])
+        up: np.ndarray = np.array([0.0, 0.0, cover_m])
     else:
         axis, across = hand[:, :, 0], hand[:, :, 1]
-        up = -(PAD_TOP_ABOVE_CENTRE_M + PAD_TOP_MARGIN_M) * hand[:, :, 2]  # toward the palm
+        up = -cover_m * hand[:, :, 2]  # toward the palm
     side = PAD_HALF_WIDTH_M * across  # (K, 3)
     # The pad's six points, the most discriminating first (its top edge); each is tested
     # only for the candidates that passed the ones before.
@@ -749,11 +757,16 @@ def _pads_supported(
 
 
 def _reaches_top(
-    mesh: Mesh, R: np.ndarray, t: np.ndarray, p_world: np.ndarray, n_world: np.ndarray
+    mesh: Mesh,
+    R: np.ndarray,
+    t: np.ndarray,
+    p_world: np.ndarray,
+    n_world: np.ndarray,
+    cover_m: float = PAD_COVER_M,
 ) -> np.ndarray:
-    """(n,) the surface is found above each contact at the pad's top edge (or up to
-    :data:`PAD_DEPTHS_M` along the inward normal)."""
-    up = np.array([0.0, 0.0, PAD_TOP_ABOVE_CENTRE_M + PAD_TOP_MARGIN_M])
+    """(n,) the surface is found ``cover_m`` above each contact (the pad's top edge; or up
+    to :data:`PAD_DEPTHS_M` along the inward normal)."""
+    up = np.array([0.0, 0.0, cover_m])
     probes = p_world[None] + up - PAD_DEPTHS_M[:, None, None] * n_world[None]  # (D, n, 3)
     normals = np.broadcast_to(n_world, probes.shape)
     hit = _supported((probes.reshape(-1, 3) - t) @ R, normals.reshape(-1, 3) @ R, mesh)
