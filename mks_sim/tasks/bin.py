@@ -1378,13 +1378,13 @@ TIGHT_CLEARANCE_M = 0.012
 #: ... and this close in a last round, once per instance (a fingertip's half thickness and
 #: 2 mm: the fingertip may graze the wall; a part against a wall is otherwise left in the bin).
 TOUCH_CLEARANCE_M = 0.007
-#: In the round after that ("partial"), a pad need only have the surface this far above its
-#: centre (the whole pad: grasp.PAD_COVER_M, 9 mm): a face thinner than the 15 mm pad, a
-#: flange, may be pinched with the pad reaching over its top edge.
-PARTIAL_PAD_COVER_M = 0.003
 #: ... where an open finger's footprint (:func:`walls_block`) may reach this far over a
 #: wall's inner face (its discs hold the fingers loosely, by up to 6 mm).
 TOUCH_WALL_OVERLAP_M = 0.003
+#: In the last round of all ("partial", after the pushes), a pad need only have the surface
+#: this far above its centre (the whole pad: grasp.PAD_COVER_M, 9 mm): a face thinner than
+#: the 15 mm pad, a flange, may be pinched with the pad reaching over its top edge.
+PARTIAL_PAD_COVER_M = 0.003
 
 #: An instance with more than this many of other instances' sensed points resting on it is
 #: picked after the free ones.
