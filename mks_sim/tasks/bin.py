@@ -14,7 +14,7 @@ import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import mujoco
 import numpy as np
@@ -1323,7 +1323,7 @@ def _choose_grasp(
     on a neighbour came from those rounds) while another instance had a clear grasp at the
     walls' closer clearances (tuning bin 10).
     """
-    last = [i for i in order if not near_failed[i]] + [i for i in order if near_failed[i]]
+    last = _failed_last(order, near_failed)
     if clear is not None:
         for obstacles, among in (("all", order), ("fixed", order), ("tight", order),
                                  ("touch", last)):  # fmt: skip
@@ -1351,6 +1351,9 @@ def _choose_grasp(
     return None, blocked, no_pair
 
 
+_Found = TypeVar("_Found")
+
+
 def _partial_grasp(
     robot: Any, order: Sequence[int], near_failed: Sequence[bool]
 ) -> tuple[int, list[Any]] | None:
@@ -1362,13 +1365,30 @@ def _partial_grasp(
     push is left: a part lying with its tall end against a wall has its only whole-pad
     pinches there (the industrial part's 22 mm step; tuning bins 14 and 16, each stopped
     with the part left after two pushes that did not move it)."""
-    last = [i for i in order if not near_failed[i]] + [i for i in order if near_failed[i]]
-    for k in range(1 + GRASP_REDRAWS):
-        if k:
-            robot.redraw()
+    last = _failed_last(order, near_failed)
+
+    def first_with_candidates() -> tuple[int, list[Any]] | None:
         for i in last:
             if cands := robot.grasps(i, obstacles="partial"):
                 return i, cands
+        return None
+
+    return _in_draws(robot, first_with_candidates)
+
+
+def _failed_last(order: Sequence[int], near_failed: Sequence[bool]) -> list[int]:
+    """``order`` with the instances a pick failed on (``near_failed``) moved to its end."""
+    return [i for i in order if not near_failed[i]] + [i for i in order if near_failed[i]]
+
+
+def _in_draws(robot: Any, find: Callable[[], _Found | None]) -> _Found | None:
+    """The first answer of ``find`` that is not None in up to 1 + :data:`GRASP_REDRAWS`
+    draws of the synthesis (:meth:`BinPicker.redraw` before each but the first), or None."""
+    for k in range(1 + GRASP_REDRAWS):
+        if k:
+            robot.redraw()
+        if (found := find()) is not None:
+            return found
     return None
 
 
@@ -2375,12 +2395,7 @@ def leans(vertices_world: np.ndarray, com_world: np.ndarray) -> bool:
 def _has_pair(robot: Any, i: int) -> bool:
     """Instance ``i`` has an antipodal pair with no obstacles in one of up to
     1 + :data:`GRASP_REDRAWS` draws of the synthesis (:meth:`BinPicker.redraw`)."""
-    for k in range(1 + GRASP_REDRAWS):
-        if k:
-            robot.redraw()
-        if robot.grasps(i, obstacles="none"):
-            return True
-    return False
+    return _in_draws(robot, lambda: True if robot.grasps(i, obstacles="none") else None) is not None
 
 
 def _push(ctl: Any, plan: PushPlan, home_pos: np.ndarray, home_yaw: float) -> bool:
