@@ -159,6 +159,36 @@ def test_pose_hypothesis() -> None:
         PoseHypothesis(np.eye(3), [0, 0, 0])
 
 
+def test_pose_hypothesis_many_equals_one_by_one() -> None:
+    rng = np.random.default_rng(3)
+    mats = np.stack([make_transform(random_rotation(rng), rng.normal(size=3)) for _ in range(5)])
+    refs = rng.normal(size=(5, 3))
+    corrs = [np.arange(2 * k).reshape(-1, 2) for k in range(5)]
+    votes = [4, 3, 3, 1, 0]
+    many = PoseHypothesis.many(mats, refs, votes, corrs)
+    mats[0, 0, 0] = 9.0  # the caller's arrays may change later
+    corrs[1][0, 0] = 9
+    for k, h in enumerate(many):
+        one = PoseHypothesis(mats[k] if k else many[0].matrix, refs[k], votes[k], corrs[k])
+        np.testing.assert_array_equal(h.matrix, one.matrix)
+        np.testing.assert_array_equal(h.reference_point, one.reference_point)
+        if k != 1:
+            np.testing.assert_array_equal(h.correspondences, one.correspondences)
+        assert h.correspondences.shape == (k, 2) and h.correspondences.dtype == np.int64
+        assert h.votes == votes[k] and type(h.votes) is int
+        assert math.isnan(h.rmse) and math.isnan(h.score)
+        for arr in (h.matrix, h.reference_point, h.correspondences):
+            assert not arr.flags.writeable
+    assert many[0].matrix[0, 0] != 9.0 and many[1].correspondences[0, 0] == 0
+    assert many[2].with_score(0.5).score == 0.5
+    with pytest.raises(DataError, match=r"\(K, 4, 4\)"):
+        PoseHypothesis.many(mats[:, :3], refs, votes, corrs)
+    with pytest.raises(DataError, match="5 votes"):
+        PoseHypothesis.many(mats, refs, votes[:4], corrs)
+    with pytest.raises(DataError, match=r"\(n, 2\)"):
+        PoseHypothesis.many(mats[:1], refs[:1], [1], [np.arange(3)])
+
+
 def test_rotation_from_covariance_batched_recovers_rotations_and_matches_single() -> None:
     """Batched Kabsch: K random rotations recovered from noise-free pairs, each equal to the
     one-matrix call, det +1 even for a reflection's covariance."""

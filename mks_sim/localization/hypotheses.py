@@ -546,12 +546,9 @@ def vertex_hypotheses(
     order = sorted(range(len(by_votes)), key=lambda k: (-by_votes[k][0], -quick[k]))
     ref = model.vertexes.mean(axis=0)
     refs = np.einsum("kij,j->ki", mats[:, :3, :3], ref) + mats[:, :3, 3]  # (K, 3)
-    return [
-        PoseHypothesis(
-            by_votes[k][1], refs[k], votes=by_votes[k][0], correspondences=by_votes[k][2]
-        )
-        for k in order
-    ]
+    return PoseHypothesis.many(
+        mats[order], refs[order], [by_votes[k][0] for k in order], [by_votes[k][2] for k in order]
+    )
 
 
 def _distinct_placements(
