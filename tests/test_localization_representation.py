@@ -298,3 +298,34 @@ def test_spacing_and_noise_match_a_brute_force_on_a_noisy_plane() -> None:
     assert spacing == pytest.approx(np.median(np.sort(d, axis=1)[:, 1]), rel=1e-9)
     assert noise == pytest.approx(np.median(np.sqrt(np.clip(lam, 0, None))), rel=1e-6)
     assert 0.0018 < spacing < 0.0022 and 0.5e-4 < noise < 1.5e-4
+
+
+def test_probe_knn_matches_brute_force_and_leaves_far_rows_to_the_tree() -> None:
+    """The column grid's rows are a brute force's k nearest (the probe first, distances to
+    the last bit); a probe far from everything (2 m off a 20 cm scan) is not proven within the
+    rings and is left not done; spacing_and_noise then asks a tree for it and returns what a
+    tree alone gives."""
+    from scipy.spatial import cKDTree
+
+    from mks_sim.localization.representation import spacing_and_noise
+    from mks_sim.lowlevel import _gridknn
+
+    if not _gridknn.available():
+        pytest.skip("numba not importable")
+    rng = np.random.default_rng(11)
+    xy = rng.uniform(0.0, 0.2, (6000, 2))
+    scan = np.c_[xy, 0.02 * np.sin(20 * xy[:, 0]) + rng.normal(0, 2e-4, len(xy))]
+    box = rng.uniform(0.08, 0.12, (1500, 3))  # a dense block standing on it
+    far = np.array([[2.0, 2.0, 0.0], [2.001, 2.0, 0.0]])
+    pts = np.vstack([scan, box, scan[:5], far])  # 5 exact duplicates
+    rows = np.r_[rng.choice(len(pts) - 2, 300, replace=False), len(pts) - 2]
+    d, idx, done = _gridknn.probe_knn(pts, rows, 12)
+    brute = np.sqrt(((pts[rows][:, None] - pts[None]) ** 2).sum(axis=2))
+    want = np.lexsort((np.broadcast_to(np.arange(len(pts)), brute.shape), brute), axis=1)[:, :12]
+    assert not done[-1] and done[:-1].all()
+    np.testing.assert_array_equal(idx[:-1], want[:-1])
+    np.testing.assert_array_equal(d[:-1], np.take_along_axis(brute, want, axis=1)[:-1])
+    tree = cKDTree(pts)
+    for probes in (300, 20000):  # probes drawn, and every point a probe
+        with_tree = spacing_and_noise(pts, np.random.default_rng(1), tree, probes=probes)
+        assert spacing_and_noise(pts, np.random.default_rng(1), probes=probes) == with_tree

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["available", "grid_knn"]
+__all__ = ["available", "grid_knn", "probe_knn"]
 
 log = logging.getLogger(__name__)
 _lock = threading.Lock()
@@ -45,6 +45,10 @@ _MAX_BLOCK = 4096
 # Target points per occupied cell, times (m + 1).
 _PPC = 0.43
 _RINGS = (1, 2)
+# probe_knn: cells of 1 / _PROBE_CELL the side of a square of the box holding k points;
+# rings tried before a row is left to the tree.
+_PROBE_CELL = 2.0
+_PROBE_RINGS = 4
 
 
 def available() -> bool:
@@ -87,6 +91,8 @@ def _compile() -> dict[str, Any]:
         "sort_rows": k.sort_rows,
         "count_occupied": k.count_occupied,
         "knn": k.knn_cells,
+        "column_keys": k.column_keys,
+        "probe_rows": k.probe_rows,
     }
 
 
@@ -192,6 +198,59 @@ def grid_knn(
     finally:
         numba.set_num_threads(old)
     return nbr, dist, lens, done
+
+
+def probe_knn(
+    points: NDArray[np.float64], rows: NDArray[np.intp], k: int
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:
+    """The ``k`` nearest points of a few rows of (N, 3) points, as ``cKDTree(points).query(
+    points[rows], k)`` answers them (the row itself first), without a tree.
+
+    A statistic over a few hundred probes of a scan needs their neighbours only: the points
+    are sorted into columns of an (x, y) grid (about ``k`` points a column over the bounding
+    box) and each probe ranks the points of the columns around its own, widening the block
+    until no point outside it can be nearer than its k-th (the 23,700-point scan's 800
+    probes in well under the tree's build alone). Rows not proven within a few rings (a probe
+    far from the rest) are returned as not done: the caller asks a tree.
+
+    Returns:
+        (dist (P, k), idx (P, k), done (P,)): rows with ``done`` nearest first, ties by
+        index; other rows are garbage.
+    """
+    kern = _load()
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    n = len(pts)
+    out_d = np.empty((len(rows), k))
+    out_i = np.empty((len(rows), k), np.int64)
+    done = np.zeros(len(rows), bool)
+    if n < k or k < 1 or len(rows) == 0:
+        return out_d, out_i, done
+    # (per column: numpy's axis-0 reduction of an (N, 3) array is 20x slower)
+    lo = np.array([pts[:, d].min() for d in range(3)])
+    ext = np.array([pts[:, d].max() for d in range(3)]) - lo
+    span = max(float(ext[0]), float(ext[1]))
+    if not span > 0:
+        return out_d, out_i, done
+    area = max(float(ext[0]), span / 1e3) * max(float(ext[1]), span / 1e3)
+    # about k / 4 points a column over the box: the 3 x 3 block around a probe then
+    # mostly holds its k nearest in a scan that fills the box (the scan's 800 probes: 1.2 ms,
+    # against 1.9 with k points a column)
+    h = math.sqrt(area * k / n) / _PROBE_CELL
+    h = max(h, span / math.sqrt(4.0 * n))  # at most ~4 N columns
+    nx = int(ext[0] // h) + 1
+    ny = int(ext[1] // h) + 1
+    key = kern["column_keys"](pts, lo, h, nx, ny)
+    order = kern["counting_order"](key, nx * ny)
+    start = np.zeros(nx * ny + 1, np.int64)
+    np.cumsum(np.bincount(key, minlength=nx * ny), out=start[1:])
+    sx, sy, sz = kern["gather_columns"](pts, order)
+    margin = 1e-9 * h + 1e-12 * float(max(np.abs(lo).max(), np.abs(lo + ext).max()))
+    kern["probe_rows"](
+        pts, sx, sy, sz, rows, k, lo, h, nx, ny, start, order, margin, _PROBE_RINGS, out_d, out_i,
+        done,
+    )  # fmt: skip
+    return out_d, out_i, done
 
 
 def sort_rows(
