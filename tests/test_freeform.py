@@ -483,6 +483,26 @@ def test_unique_keys_is_numpys_unique_of_the_keys() -> None:
     assert all(len(a) == 0 for a in unique_keys(np.zeros(0, dtype=np.int64)))
 
 
+def test_radix_sort_order_is_numpys_stable_argsort() -> None:
+    """The compiled radix sort orders non-negative int64 keys as numpy's stable argsort
+    does, for keys of 1 to 62 bits with repeats (one pass to six); ``unique_keys`` falls back
+    to numpy for negative keys and gives ``np.unique``'s answer either way."""
+    from mks_sim.geometry.keypoints import unique_keys
+    from mks_sim.lowlevel import _gridknn
+
+    if not _gridknn.available():
+        pytest.skip("numba not importable")
+    rng = np.random.default_rng(13)
+    for top in (1, 2**11, 2**11 + 1, 2**21, 2**40, 2**62):
+        keys = rng.integers(0, top, size=int(rng.integers(1, 20000)), dtype=np.int64)
+        keys = np.concatenate([keys, keys[: len(keys) // 3]])  # repeats
+        np.testing.assert_array_equal(_gridknn.sort_order(keys), np.argsort(keys, kind="stable"))
+    keys = rng.integers(-500, 500, size=5000)
+    want = np.unique(keys, return_index=True, return_inverse=True, return_counts=True)
+    for g, w in zip(unique_keys(keys), want, strict=True):
+        np.testing.assert_array_equal(g, np.asarray(w).reshape(-1))
+
+
 def test_unique_cells_is_numpys_unique_of_the_rows() -> None:
     """``unique_cells`` gives ``np.unique(cells, axis=0, ...)``'s first indices, inverse and
     counts, by int64 keys and, for cells too far apart for one key, by the rows."""
