@@ -425,3 +425,22 @@ def test_median_by_one_partition_is_numpys_median() -> None:
     for n in (1, 2, 3, 10, 11, 1000, 1001):
         x = rng.normal(size=n)
         assert _median(x) == float(np.median(x))
+
+
+def test_column_mean_is_numpys_axis0_mean_to_the_bit() -> None:
+    """``column_mean`` gives ``a.mean(axis=0)`` bit for bit: the compiled loop for 2-8
+    columns (numpy adds their rows in order), numpy itself for one column (added pairwise),
+    short, strided or float32 arrays."""
+    from mks_sim.lowlevel import _gridknn
+    from mks_sim.lowlevel._gridknn import column_mean
+
+    if not _gridknn.available():
+        pytest.skip("numba not importable")
+    rng = np.random.default_rng(21)
+    for _ in range(200):
+        n, k = int(rng.integers(1, 20000)), int(rng.integers(1, 10))
+        a = rng.normal(size=(n, k)) * rng.uniform(1e-3, 1e3) + rng.normal(size=k) * 100
+        for arr in (a, a[rng.random(n) < 0.6], a[::2], a.astype(np.float32)):
+            if len(arr):
+                want = np.asarray(arr.mean(axis=0), dtype=np.float64)
+                assert column_mean(arr).tobytes() == want.tobytes()

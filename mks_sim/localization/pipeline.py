@@ -48,6 +48,7 @@ from mks_sim.localization.representation import (
     voxel_average,
 )
 from mks_sim.localization.verify import Consistency, consistency, find_table, rank
+from mks_sim.lowlevel._gridknn import column_mean
 from mks_sim.lowlevel.grouping import (
     PlanarRegion,
     Plane,
@@ -1561,7 +1562,7 @@ def _hop(
 def _points_near(T: FloatArray, pts: FloatArray, objects: FloatArray, d: float) -> FloatArray:
     """The object points within the model's bounding sphere (about its samples' centroid,
     ``pts`` in the model frame) + 2 ``d`` of pose ``T``: what ICP of that pose fits."""
-    centre = pts.mean(axis=0)
+    centre = column_mean(pts)
     radius = float(np.max(np.linalg.norm(pts - centre, axis=1)))
     c = T[:3, :3] @ centre + T[:3, 3]
     return objects[np.linalg.norm(objects - c, axis=1) <= radius + 2 * d]

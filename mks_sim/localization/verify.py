@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from mks_sim.lowlevel._gridknn import column_mean
 from mks_sim.lowlevel.regions import Plane, fit_plane_ransac
 from mks_sim.models.pose import PoseHypothesis
 
@@ -318,7 +319,7 @@ def consistency(
             cos = np.einsum("ij,ij->i", N, ray) / np.maximum(np.linalg.norm(ray, axis=1), 1e-12)
             np.maximum(facing, cos, out=facing)
         seen &= facing > VIEW_FACING_COS
-    centre = P.mean(axis=0)
+    centre = column_mean(P)
     radius = float(np.sqrt(np.max(np.einsum("ij,ij->i", P - centre, P - centre))))
     if cloud_tree is not None:
         near_idx = np.asarray(cloud_tree.query_ball_point(centre, r=radius + 2 * d), dtype=np.intp)

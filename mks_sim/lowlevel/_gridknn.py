@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["available", "grid_knn", "probe_knn", "sort_order"]
+__all__ = ["available", "column_mean", "grid_knn", "probe_knn", "sort_order"]
 
 log = logging.getLogger(__name__)
 _lock = threading.Lock()
@@ -94,6 +94,7 @@ def _compile() -> dict[str, Any]:
         "column_keys": k.column_keys,
         "probe_rows": k.probe_rows,
         "radix_order": k.radix_order,
+        "column_sums": k.column_sums,
     }
 
 
@@ -252,6 +253,28 @@ def probe_knn(
         done,
     )  # fmt: skip
     return out_d, out_i, done
+
+
+#: Rows from which :func:`column_mean` adds them in the compiled loop.
+_COLUMN_MIN_ROWS = 512
+
+
+def column_mean(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``a.mean(axis=0)`` of a C-ordered (N, 2 <= k <= 8) float64 array, to the bit: numpy
+    adds such rows in order, and so does the compiled loop, 4x faster on a 13,000-point
+    table (numpy's axis-0 reduction walks the rows with a k-wide inner loop; one column is
+    a contiguous run that numpy adds pairwise, and is left to numpy)."""
+    if (
+        a.ndim == 2
+        and 2 <= a.shape[1] <= 8
+        and len(a) >= _COLUMN_MIN_ROWS
+        and a.dtype == np.float64
+        and a.flags.c_contiguous
+        and available()
+    ):
+        out: NDArray[np.float64] = _load()["column_sums"](a) / len(a)
+        return out
+    return np.asarray(a.mean(axis=0), dtype=np.float64)
 
 
 def sort_order(keys: NDArray[np.int64]) -> NDArray[np.int64]:

@@ -20,6 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import sparse
 
 from mks_sim.geometry.points import as_points
+from mks_sim.lowlevel._gridknn import column_mean
 from mks_sim.lowlevel.spg import SpatialProximityGraph
 
 __all__ = [
@@ -169,7 +170,7 @@ def _pca_sparse(pts: FloatArray, A: sparse.csr_array) -> tuple[FloatArray, Float
 def _sparse_cov(pts: FloatArray, A: sparse.csr_array) -> FloatArray:
     """(N, 6) covariances (xx xy xz yy yz zz) of every neighbourhood (rows of ``A``) from
     first and second moments accumulated by sparse products (no (N, K, 3) gather)."""
-    c = pts - pts.mean(axis=0)  # centred: the moments do not cancel catastrophically
+    c = pts - column_mean(pts)  # centred: the moments do not cancel catastrophically
     cnt = np.asarray(A.sum(axis=1)).reshape(-1)
     mean = (A @ c) / cnt[:, None]
     iu = (np.array([0, 0, 0, 1, 1, 2]), np.array([0, 1, 2, 1, 2, 2]))
@@ -201,7 +202,7 @@ def _ring_cov(pts: FloatArray, graph: GraphLike, rings: int) -> FloatArray:
     from mks_sim.lowlevel._regions_kernels import ring_moments
 
     sym = symmetric_adjacency(graph)
-    c = np.ascontiguousarray(pts - pts.mean(axis=0), dtype=np.float64)
+    c = np.ascontiguousarray(pts - column_mean(pts), dtype=np.float64)
     out: FloatArray = ring_moments(
         sym.indptr.astype(np.int64), sym.indices.astype(np.int64), c, rings,
         numba.get_num_threads(),
@@ -305,7 +306,7 @@ def estimate_normals(
         vp = np.asarray(viewpoint, dtype=np.float64).reshape(3)
         toward = vp[None, :] - pts
     else:
-        toward = pts - pts.mean(axis=0)
+        toward = pts - column_mean(pts)
     flip = np.einsum("ni,ni->n", normals, toward) < 0
     normals[flip] *= -1.0
     return SurfaceNormals(normals=normals, curvature=curvature)

@@ -18,6 +18,7 @@ from scipy import sparse
 from scipy.sparse import csgraph
 
 from mks_sim.errors import DataError
+from mks_sim.lowlevel._gridknn import column_mean
 from mks_sim.lowlevel.normals import (
     DEFAULT_CURVATURE_THRESHOLD,
     FixedGraph,
@@ -160,7 +161,7 @@ def fit_plane(points: ArrayLike, iterations: int = 3) -> Plane:
     normal, offset = np.array([0.0, 0.0, 1.0]), 0.0
     for _ in range(max(1, iterations)):
         sub = pts[keep]
-        c = sub.mean(axis=0)
+        c = column_mean(sub)
         d = sub - c
         # the smallest principal axis: eigenvector of the 3x3 scatter (no (N, 3) SVD)
         normal = np.linalg.eigh(d.T @ d)[1][:, 0]
@@ -440,12 +441,12 @@ def grow_planar_regions(
     for rid, members in enumerate(members_list):
         final[members] = rid
         pl = fit_plane(points[members])
-        planes.append(pl.flipped() if pl.normal @ normals[members].mean(axis=0) < 0 else pl)
+        planes.append(pl.flipped() if pl.normal @ column_mean(normals[members]) < 0 else pl)
     _absorb_boundary(points, graph, final, planes, distance / 2)
     regions = []
     for rid, pl in enumerate(planes):
         kept = np.flatnonzero(final == rid)
-        regions.append(PlanarRegion(kept, pl, points[kept].mean(axis=0)))
+        regions.append(PlanarRegion(kept, pl, column_mean(points[kept])))
     return final, regions
 
 
