@@ -171,7 +171,9 @@ class Representation:
         if raw.ndim != 2 or raw.shape[1] < 3:
             raise DataError(f"Representation: expected (N, 3) points, got shape {raw.shape}")
         raw = raw[:, :3]
-        self.raw: FloatArray = raw[np.all(np.isfinite(raw), axis=1)]
+        # (per column: an (N, 3) all over axis 1 is several times slower)
+        finite = np.isfinite(raw[:, 0]) & np.isfinite(raw[:, 1]) & np.isfinite(raw[:, 2])
+        self.raw: FloatArray = raw[finite]
         if len(self.raw) < 10:
             raise DataError(
                 f"Representation: expected at least 10 finite points, got {len(self.raw)}"
