@@ -303,8 +303,8 @@ def test_spacing_and_noise_match_a_brute_force_on_a_noisy_plane() -> None:
 def test_probe_knn_matches_brute_force_and_leaves_far_rows_to_the_tree() -> None:
     """The column grid's rows are a brute force's k nearest (the probe first, distances to
     the last bit); a probe far from everything (2 m off a 20 cm scan) is not proven within the
-    rings and is left not done; spacing_and_noise then asks a tree for it and returns what a
-    tree alone gives."""
+    rings and is left not done, and so are rows whose blocks a far outlier crowds;
+    spacing_and_noise then asks a tree for them and returns what a tree alone gives."""
     from scipy.spatial import cKDTree
 
     from mks_sim.localization.representation import spacing_and_noise
@@ -329,3 +329,10 @@ def test_probe_knn_matches_brute_force_and_leaves_far_rows_to_the_tree() -> None
     for probes in (300, 20000):  # probes drawn, and every point a probe
         with_tree = spacing_and_noise(pts, np.random.default_rng(1), tree, probes=probes)
         assert spacing_and_noise(pts, np.random.default_rng(1), probes=probes) == with_tree
+    # one point 1 km off stretches the grid: the scan crowds a few columns, so its rows are
+    # left to the tree rather than ranked against thousands of points each
+    stretched = np.vstack([pts[:-2], [[1000.0, 1000.0, 0.0]]])
+    _, _, done = _gridknn.probe_knn(stretched, rows[:-1], 12)
+    assert not done.any()
+    with_tree = spacing_and_noise(stretched, np.random.default_rng(1), cKDTree(stretched))
+    assert spacing_and_noise(stretched, np.random.default_rng(1)) == with_tree

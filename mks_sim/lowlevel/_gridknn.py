@@ -249,8 +249,8 @@ def probe_knn(
     sx, sy, sz = kern["gather_columns"](pts, order)
     margin = 1e-9 * h + 1e-12 * float(max(np.abs(lo).max(), np.abs(lo + ext).max()))
     kern["probe_rows"](
-        pts, sx, sy, sz, rows, k, lo, h, nx, ny, start, order, margin, _PROBE_RINGS, out_d, out_i,
-        done,
+        pts, sx, sy, sz, rows, k, lo, h, nx, ny, start, order, margin, _PROBE_RINGS, _MAX_BLOCK,
+        out_d, out_i, done,
     )  # fmt: skip
     return out_d, out_i, done
 

@@ -362,12 +362,14 @@ def column_keys(pts, lo, h, nx, ny):
 
 @nb.njit(cache=True)
 def probe_rows(
-    pts, sx, sy, sz, rows, k, lo, h, nx, ny, start, order, margin, max_ring, out_d, out_i, done
-):
+    pts, sx, sy, sz, rows, k, lo, h, nx, ny, start, order, margin, max_ring, max_block, out_d,
+    out_i, done,
+):  # fmt: skip
     """The k nearest points (the probe itself included, nearest first, ties by index) of
     each probe row, from the (2r+1)^2 columns around its own on an (x, y) grid of cell h,
     r growing until every point outside them is provably farther than the k-th (at most
-    ``max_ring``; a row not proven by then is left not done)."""
+    ``max_ring``, and blocks of at most ``max_block`` points: a row not proven by then is
+    left not done; a far outlier that stretches the grid leaves the dense rest to a tree)."""
     best_d2 = np.empty(k)
     best_i = np.empty(k, np.int64)
     for p in range(rows.shape[0]):
@@ -382,6 +384,11 @@ def probe_rows(
             x1 = min(cx + r, nx - 1)
             y0 = max(cy - r, 0)
             y1 = min(cy + r, ny - 1)
+            total = 0
+            for x in range(x0, x1 + 1):
+                total += start[x * ny + y1 + 1] - start[x * ny + y0]
+            if total > max_block:
+                break
             cnt = 0
             for x in range(x0, x1 + 1):
                 for col in range(x * ny + y0, x * ny + y1 + 1):
