@@ -101,6 +101,16 @@ def voxel_average(points: FloatArray, voxel: float) -> FloatArray:
     return out
 
 
+def _grid_answers(points: FloatArray) -> bool:
+    """The statistics' neighbours of these points come from the compiled column grid
+    (:func:`spacing_and_noise` without a tree): 3-D, enough of them, numba importable."""
+    if len(points) < _GRID_MIN_POINTS or points.shape[1] != 3:
+        return False
+    from mks_sim.lowlevel import _gridknn
+
+    return _gridknn.available()
+
+
 def spacing_and_noise(
     points: FloatArray,
     rng: np.random.Generator,
@@ -120,17 +130,15 @@ def spacing_and_noise(
     sel = None if n <= probes else rng.choice(n, probes, replace=False)
     probe = points if sel is None else points[sel]
     k = min(12, n)
-    d = idx = None
-    if tree is None and n >= _GRID_MIN_POINTS and points.shape[1] == 3:
+    if tree is None and _grid_answers(points):
         from mks_sim.lowlevel import _gridknn
 
-        if _gridknn.available():
-            rows = np.arange(n) if sel is None else sel
-            d, idx, done = _gridknn.probe_knn(points, rows, k)
-            if not done.all():
-                left = np.flatnonzero(~done)
-                d[left], idx[left] = _tree(points).query(probe[left], k=k)
-    if d is None or idx is None:
+        rows = np.arange(n) if sel is None else sel
+        d, idx, done = _gridknn.probe_knn(points, rows, k)
+        if not done.all():
+            left = np.flatnonzero(~done)
+            d[left], idx[left] = _tree(points).query(probe[left], k=k)
+    else:
         d, idx = (tree if tree is not None else _tree(points)).query(probe, k=k)
     spacing = float(np.median(d[:, 1])) if k > 1 else 0.0
     nb = points[idx]  # (P, k, 3)
@@ -191,9 +199,9 @@ class Representation:
 
     @cached_property
     def _raw_stats(self) -> tuple[float, float]:
-        # the statistics that set the voxel: without a tree when the compiled grid can
-        # answer the probes (the voxel points get their own tree)
-        tree = self.__dict__.get("_raw_tree")
+        # the statistics that set the voxel: without a tree when the compiled grid answers
+        # the probes, else on the raw points' tree (then also :attr:`tree` when not averaged)
+        tree = None if _grid_answers(self.raw) else self._raw_tree
         return spacing_and_noise(self.raw, self._rng, tree, probes=800)
 
     @cached_property
@@ -241,7 +249,8 @@ class Representation:
     def _stats(self) -> tuple[float, float]:
         if self.voxel == 0:
             return self._raw_stats
-        tree = self.__dict__.get("tree")
+        # without numba on the representation's own tree, built once for the verification too
+        tree = None if _grid_answers(self.points) else self.tree
         return spacing_and_noise(self.points, self._rng, tree, probes=800)
 
     @property

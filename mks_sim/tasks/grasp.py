@@ -523,7 +523,9 @@ def synthesize_grasps(
         ok &= _under_palm(pinch[b], yaw[b], own) == 0
         ok &= _tip_hits(tips, pinch[b, 2], obs, finger_clearance_m) == 0
         b = b[ok]
-        ok = _pads_supported(mesh, R, t, p_world, n_world, f1[b], f23[b], yaw[b], None, pad_cover_m)
+        ok = _pads_supported(
+            mesh, R, t, p_world, n_world, f1[b], f23[b], yaw[b], cover_m=pad_cover_m
+        )
         kept.extend(int(k) for k in b[ok])
     sel = kept[:max_candidates]
     out = [
