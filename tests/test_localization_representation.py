@@ -336,3 +336,20 @@ def test_probe_knn_matches_brute_force_and_leaves_far_rows_to_the_tree() -> None
     assert not done.any()
     with_tree = spacing_and_noise(stretched, np.random.default_rng(1), cKDTree(stretched))
     assert spacing_and_noise(stretched, np.random.default_rng(1)) == with_tree
+
+
+def test_compiled_plane_counts_equal_the_products() -> None:
+    """``plane_counts`` (a RANSAC's inlier counts) equals the count of ``|P n - o| <=
+    threshold`` by products, on planes through some of the points and random ones."""
+    from mks_sim.lowlevel import _gridknn
+
+    if not _gridknn.available():
+        pytest.skip("numba unavailable")
+    rng = np.random.default_rng(5)
+    for _ in range(30):
+        pts = rng.normal(size=(int(rng.integers(1, 3000)), 3)) * 0.05
+        nrm = rng.normal(size=(64, 3))
+        nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+        off = np.einsum("ij,ij->i", nrm, pts[rng.integers(0, len(pts), 64)])
+        want = (np.abs(nrm @ pts.T - off[:, None]) <= 0.01).sum(axis=1)
+        np.testing.assert_array_equal(_gridknn.plane_counts(nrm, off, pts, 0.01), want)

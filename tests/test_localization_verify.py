@@ -101,13 +101,25 @@ def _cube_scene(
 _VIEWS = np.array([[0.38, -0.28, 1.07], [-0.38, -0.28, 1.07]])
 
 
+@pytest.mark.parametrize("compiled", [True, False])
 @pytest.mark.parametrize("views", [(), _VIEWS])
 @pytest.mark.parametrize(
     "shift", [(0.0, 0.0, 0.0), (0.012, -0.004, 0.0), (0.0, 0.0, -0.006), (0.0, 0.0, 0.02)]
 )
 def test_consistency_counts_match_brute_force(
-    shift: tuple[float, float, float], views: np.ndarray
+    shift: tuple[float, float, float],
+    views: np.ndarray,
+    compiled: bool,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
+    """The counts against a brute force, with the compiled ball and footprint queries and
+    with numpy and the k-d trees (numba off)."""
+    from mks_sim.lowlevel import _gridknn
+
+    if not compiled:
+        monkeypatch.setattr(_gridknn, "available", lambda: False)
+    elif not _gridknn.available():
+        pytest.skip("numba unavailable")
     pts, nrm, cloud, table, Ts = _cube_scene(4, 1500, shift)
     d = 0.003
     vp = np.asarray(views, dtype=np.float64).reshape(-1, 3) if len(views) else None
@@ -505,3 +517,49 @@ def test_components_merge_when_one_object_could_span_them() -> None:
     assert nearest_pair(a, e) < 0.25 * size
     assert out[0] == out[300] != out[500]  # a and b merged, c apart
     assert out[700] not in (out[0], out[500])  # e: near a, but a + b + e exceeds 1.1 x size
+
+
+def test_compiled_ball_and_plane_queries_follow_the_trees_rule() -> None:
+    """``ball_rows`` and ``plane_pairs`` return the sets the k-d tree returns
+    (``query_ball_point``, ``sparse_distance_matrix``, ``query`` with an upper bound), exact
+    ties included: coordinates on a 1/8 grid make many squared distances equal r^2 exactly,
+    where ``<=`` and ``<`` part. Also points on a line (a flat grid), queries far outside,
+    and none."""
+    from mks_sim.lowlevel import _gridknn
+
+    if not _gridknn.available():
+        pytest.skip("numba unavailable")
+    rng = np.random.default_rng(12)
+    ties = 0
+    for trial in range(40):
+        n = int(rng.integers(1, 400))
+        pts = rng.integers(-12, 13, size=(n, 3)) / 8.0
+        if trial % 5 == 0:
+            pts[:, 1] = 0.25  # (x, y) on a line
+        r = float(rng.choice([0.5, 0.625, 1.0, 0.3]))
+        tree3 = cKDTree(pts)
+        for c in (pts[0], rng.integers(-12, 13, size=3) / 8.0, np.array([40.0, 0.0, 0.0])):
+            want = np.sort(np.asarray(tree3.query_ball_point(c, r), dtype=np.intp))
+            np.testing.assert_array_equal(_gridknn.ball_rows(pts, c, r), want)
+            ties += int(np.sum(np.sum((pts - c) ** 2, axis=1) == r * r))
+        xy = np.ascontiguousarray(pts[:, :2])
+        queries = np.vstack(
+            [rng.integers(-14, 15, size=(50, 2)) / 8.0, xy[:3], [[100.0, -100.0]]]
+        )
+        tree2 = cKDTree(xy)
+        lens, flat = _gridknn.plane_pairs(xy, queries, r)
+        assert lens.shape == (len(queries),) and len(flat) == lens.sum()
+        starts = np.cumsum(lens) - lens
+        near = tree2.query_ball_point(queries, r)
+        for q in range(len(queries)):
+            np.testing.assert_array_equal(
+                flat[starts[q] : starts[q] + lens[q]], np.sort(np.asarray(near[q], dtype=np.intp))
+            )
+        any_lens, _ = _gridknn.plane_pairs(xy, queries, r, strict=True, first_only=True)
+        np.testing.assert_array_equal(
+            any_lens > 0, np.isfinite(tree2.query(queries, distance_upper_bound=r)[0])
+        )
+        assert any_lens.max(initial=0) <= 1
+    assert ties > 20  # the boundary was tested
+    lens, flat = _gridknn.plane_pairs(np.zeros((5, 2)), np.zeros((0, 2)), 0.5)
+    assert len(lens) == 0 and len(flat) == 0

@@ -654,11 +654,12 @@ def localize_cloud(
         raise DataError(f"localize_cloud: scene points are not numeric: {exc}") from exc
     if raw.ndim != 2 or raw.shape[1] != 3:
         raise DataError(f"localize_cloud: expected (N, 3) scene points, got shape {raw.shape}")
-    finite = np.all(np.isfinite(raw), axis=1)
+    # (per column, and a mask's rows by compress: several times faster than axis-1 and [mask])
+    finite = np.isfinite(raw[:, 0]) & np.isfinite(raw[:, 1]) & np.isfinite(raw[:, 2])
     dropped = int((~finite).sum())
     if dropped:
         log.warning("localize_cloud: dropped %d NaN/inf scene points of %d", dropped, len(raw))
-    pts = raw[finite]
+    pts = np.compress(finite, raw, axis=0)
     if len(pts) < 10:
         raise DataError(f"localize_cloud: expected at least 10 finite scene points, got {len(pts)}")
     vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(3)
@@ -1062,7 +1063,7 @@ def localize_polyhedral(
         hit = checked.get(id(h))
         if hit is None or hit[0] is not h:
             c = consistency(
-                h.matrix, surface_pts, surface_nrm, points, table, d, rep.tree, sphere_pts,
+                h.matrix, surface_pts, surface_nrm, points, table, d, None, sphere_pts,
                 surface=surface, viewpoints=viewpoints,
             )  # fmt: skip
             hit = (h, _whole(c))

@@ -181,7 +181,7 @@ class Representation:
         raw = raw[:, :3]
         # (per column: an (N, 3) all over axis 1 is several times slower)
         finite = np.isfinite(raw[:, 0]) & np.isfinite(raw[:, 1]) & np.isfinite(raw[:, 2])
-        self.raw: FloatArray = raw[finite]
+        self.raw: FloatArray = np.compress(finite, raw, axis=0)
         if len(self.raw) < 10:
             raise DataError(
                 f"Representation: expected at least 10 finite points, got {len(self.raw)}"

@@ -317,7 +317,7 @@ def localize_freeform(
     surface_nrm = np.asarray(model.surface_normals(), dtype=np.float64)
     candidates = list(loc.hypotheses)
     checks = [
-        consistency(h.matrix, surface_pts, surface_nrm, rep.points, table, d, rep.tree)
+        consistency(h.matrix, surface_pts, surface_nrm, rep.points, table, d)
         for h in candidates
     ]
     # The check vetoes; the matcher's order stands (its score, inlier fraction x residual x

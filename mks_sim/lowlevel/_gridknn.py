@@ -32,7 +32,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["available", "column_mean", "grid_knn", "probe_knn", "sort_order"]
+__all__ = [
+    "available",
+    "ball_rows",
+    "column_mean",
+    "grid_knn",
+    "plane_counts",
+    "plane_pairs",
+    "probe_knn",
+    "sort_order",
+]
 
 log = logging.getLogger(__name__)
 _lock = threading.Lock()
@@ -95,6 +104,9 @@ def _compile() -> dict[str, Any]:
         "probe_rows": k.probe_rows,
         "radix_order": k.radix_order,
         "column_sums": k.column_sums,
+        "ball_rows": k.ball_rows,
+        "plane_pairs": k.plane_pairs,
+        "plane_counts": k.plane_counts,
     }
 
 
@@ -292,3 +304,73 @@ def sort_rows(
 ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
     """Copies of CSR (cols, data) with each row sorted by column (compiled; short rows)."""
     return _load()["sort_rows"](indptr, cols, data)  # type: ignore[no-any-return]
+
+
+def ball_rows(
+    points: NDArray[np.float64], centre: NDArray[np.float64], r: float
+) -> NDArray[np.intp]:
+    """Ascending indices of the rows of (N, 3) ``points`` within ``r`` of ``centre`` by the
+    k-d tree's rule (``cKDTree.query_ball_point``: the squared distance, summed over x, y,
+    z in that order, <= r * r): one compiled pass, 17,600 points in about 20 us, where
+    the tree's build alone takes 1.5 ms (half of it numpy's axis-0 min and max)."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    c = np.asarray(centre, dtype=np.float64).reshape(3)
+    rr = float(r) * float(r)
+    if available():
+        out: NDArray[np.intp] = _load()["ball_rows"](pts, c[0], c[1], c[2], rr).astype(np.intp)
+        return out
+    d = pts - c
+    return np.flatnonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2] <= rr)
+
+
+def plane_pairs(
+    points: NDArray[np.float64],
+    queries: NDArray[np.float64],
+    r: float,
+    *,
+    strict: bool = False,
+    first_only: bool = False,
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """(lens, flat): for each 2-D query, the indices of the 2-D ``points`` within ``r``,
+    grouped by query in query order (ascending within one), by the k-d tree's rule: squared
+    distance (x then y) <= r * r (``sparse_distance_matrix``, ``query_ball_point``), or
+    < r * r when ``strict`` (``query``'s ``distance_upper_bound``); ``first_only``: at most
+    one per query (whether there is one). A grid of cells just over ``r`` (at most about
+    4 per point: wider when ``r`` is small for the points' extent) built and queried in one
+    compiled call. Needs :func:`available`."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)[:, :2]
+    qs = np.ascontiguousarray(queries, dtype=np.float64)[:, :2]
+    if len(pts) == 0 or len(qs) == 0:
+        return np.zeros(len(qs), dtype=np.intp), np.zeros(0, dtype=np.intp)
+    lo = np.array([pts[:, 0].min(), pts[:, 1].min()])
+    ext = np.array([pts[:, 0].max(), pts[:, 1].max()]) - lo
+    # just over r: a match of a query is then always in the 3 x 3 cells around its own
+    # (a rounding of the cell coordinates cannot put it two cells away)
+    h = max(float(r) * (1.0 + 1e-9), 1e-300)
+    cells = 4.0 * len(pts) + 16.0
+    h = max(h, float(np.sqrt(ext[0] * ext[1] / cells)), float(ext.max()) / cells)
+    nx, ny = (int(e / h) + 1 for e in ext)
+    lens, flat = _load()["plane_pairs"](
+        np.ascontiguousarray(pts), np.ascontiguousarray(qs), float(r) * float(r), lo, h,
+        nx, ny, strict, first_only,
+    )  # fmt: skip
+    return lens.astype(np.intp), flat.astype(np.intp)
+
+
+def plane_counts(
+    normals: NDArray[np.float64], offsets: NDArray[np.float64], points: NDArray[np.float64],
+    threshold: float,
+) -> NDArray[np.intp]:
+    """(K,) how many of the (N, 3) ``points`` lie within ``threshold`` of each of K planes
+    (unit ``normals``, ``offsets``): a RANSAC's inlier counts, one compiled pass per plane
+    with no (K, N) distance matrix (100 planes and 4,000 points in about 0.2 ms against
+    0.8 by products). The distances are rounded as the products round them but for the
+    order of the three terms: a count can differ only for a point within a few units in
+    the last place of the threshold. Needs :func:`available`."""
+    out: NDArray[np.intp] = _load()["plane_counts"](
+        np.ascontiguousarray(normals, dtype=np.float64),
+        np.ascontiguousarray(offsets, dtype=np.float64),
+        np.ascontiguousarray(points, dtype=np.float64),
+        float(threshold),
+    ).astype(np.intp)
+    return out

@@ -466,3 +466,117 @@ def column_sums(a):
         for j in range(a.shape[1]):
             out[j] += a[i, j]
     return out
+
+
+@nb.njit(cache=True)
+def ball_rows(pts, c0, c1, c2, rr):
+    """Ascending indices of the rows of ``pts`` within the ball: ``(dx*dx + dy*dy) + dz*dz
+    <= rr``, the squared distance as the k-d tree adds it (its data point minus the query)."""
+    n = pts.shape[0]
+    out = np.empty(n, np.int64)
+    k = 0
+    for i in range(n):
+        dx = pts[i, 0] - c0
+        dy = pts[i, 1] - c1
+        dz = pts[i, 2] - c2
+        if dx * dx + dy * dy + dz * dz <= rr:
+            out[k] = i
+            k += 1
+    return out[:k]
+
+
+@nb.njit(cache=True)
+def _plane_grid(pts, lo, h, nx, ny):
+    """Counting sort of 2-D points into the nx x ny cells of edge h from ``lo``: (start,
+    order), the points of cell c being ``order[start[c]:start[c + 1]]``, ascending."""
+    n = pts.shape[0]
+    key = np.empty(n, np.int64)
+    start = np.zeros(nx * ny + 1, np.int64)
+    for i in range(n):
+        cx = min(max(int(math.floor((pts[i, 0] - lo[0]) / h)), 0), nx - 1)
+        cy = min(max(int(math.floor((pts[i, 1] - lo[1]) / h)), 0), ny - 1)
+        key[i] = cx * ny + cy
+        start[key[i] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        order[fill[key[i]]] = i
+        fill[key[i]] += 1
+    return start, order
+
+
+@nb.njit(cache=True)
+def plane_pairs(pts, queries, rr, lo, h, nx, ny, strict, first_only):
+    """For each 2-D query, the ``pts`` within it: ``dx*dx + dy*dy <= rr`` (``< rr`` when
+    ``strict``), the squared distance as the k-d tree adds it. Returns (lens, flat): the
+    matches grouped by query in query order (ascending within a query); with
+    ``first_only`` at most one match per query (whether there is one).
+
+    Cells of edge ``h >= sqrt(rr)`` from ``lo``, nx x ny of them, covering ``pts``: a
+    match lies in the 3 x 3 cells around the query's (clamped to the grid: a point outside
+    the grid's box is in its edge cells, and a query farther than one cell outside matches
+    nothing)."""
+    start, order = _plane_grid(pts, lo, h, nx, ny)
+    nq = queries.shape[0]
+    lens = np.zeros(nq, np.int64)
+    cap = max(16, 4 * nq)
+    flat = np.empty(cap, np.int64)
+    k = 0
+    for q in range(nq):
+        qx = queries[q, 0]
+        qy = queries[q, 1]
+        fx = math.floor((qx - lo[0]) / h)
+        fy = math.floor((qy - lo[1]) / h)
+        if fx < -1.0 or fy < -1.0 or fx > nx or fy > ny:
+            continue
+        cx = int(fx)
+        cy = int(fy)
+        k0 = k
+        for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
+            for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
+                c = gx * ny + gy
+                for e in range(start[c], start[c + 1]):
+                    j = order[e]
+                    dx = qx - pts[j, 0]
+                    dy = qy - pts[j, 1]
+                    s = dx * dx + dy * dy
+                    if s < rr or (s == rr and not strict):
+                        if k == cap:
+                            cap *= 2
+                            grown = np.empty(cap, np.int64)
+                            grown[:k] = flat[:k]
+                            flat = grown
+                        flat[k] = j
+                        k += 1
+                        if first_only:
+                            break
+                if first_only and k > k0:
+                    break
+            if first_only and k > k0:
+                break
+        lens[q] = k - k0
+        if k - k0 > 1:
+            flat[k0:k] = np.sort(flat[k0:k])
+    return lens, flat[:k]
+
+
+@nb.njit(cache=True, parallel=True)
+def plane_counts(nrm, off, pts, threshold):
+    """(K,) for each plane (unit normal ``nrm[k]``, offset ``off[k]``), how many of ``pts``
+    lie within ``threshold`` of it: ``|n . p - off| <= threshold``."""
+    k = nrm.shape[0]
+    n = pts.shape[0]
+    out = np.zeros(k, np.int64)
+    for i in nb.prange(k):
+        a = nrm[i, 0]
+        b = nrm[i, 1]
+        c = nrm[i, 2]
+        o = off[i]
+        cnt = 0
+        for j in range(n):
+            if abs(a * pts[j, 0] + b * pts[j, 1] + c * pts[j, 2] - o) <= threshold:
+                cnt += 1
+        out[i] = cnt
+    return out

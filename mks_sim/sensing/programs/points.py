@@ -153,13 +153,19 @@ class TouchParams:
 def postprocess(points: np.ndarray, params: Mapping[str, Any]) -> np.ndarray:
     """Drop non-finite rows, crop to ``crop_min``/``crop_max``, thin to ``voxel_m``."""
     pts = np.asarray(points, dtype=float).reshape(-1, 3)
-    pts = pts[np.isfinite(pts).all(axis=1)]
+    # (per column, and a mask's rows by compress: several times faster than axis-1 and [mask])
+    pts = np.compress(
+        np.isfinite(pts[:, 0]) & np.isfinite(pts[:, 1]) & np.isfinite(pts[:, 2]), pts, axis=0
+    )
     if "crop_min" in params or "crop_max" in params:
         lo = np.asarray(params.get("crop_min", [-np.inf] * 3), dtype=float)
         hi = np.asarray(params.get("crop_max", [np.inf] * 3), dtype=float)
         if lo.shape != (3,) or hi.shape != (3,):
             raise DataError(f"crop_min/crop_max: expected 3 numbers each, got {lo} and {hi}")
-        pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
+        inside = np.ones(len(pts), dtype=bool)
+        for a in range(3):
+            inside &= (pts[:, a] >= lo[a]) & (pts[:, a] <= hi[a])
+        pts = np.compress(inside, pts, axis=0)
     voxel = float(params.get("voxel_m", 0.0))
     if voxel > 0 and len(pts):
         pts = pts[first_in_each_cell(np.floor(pts / voxel).astype(np.int64))]
@@ -242,7 +248,13 @@ def range_points(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> np.nda
         for s in scans:
             if not hasattr(s, "points_world") or not hasattr(s, "hit"):
                 raise SensorFailure("range_points", f"input {name!r} is not a range scan")
-            chunks.append(np.asarray(s.points_world)[np.asarray(s.hit)])
+            hit, world = np.asarray(s.hit, dtype=bool), np.asarray(s.points_world)
+            if hit.shape != world.shape[:1]:
+                raise SensorFailure(
+                    "range_points",
+                    f"input {name!r}: {hit.shape} hit flags for {world.shape} points",
+                )
+            chunks.append(np.compress(hit, world, axis=0))
     pts = postprocess(np.concatenate(chunks) if chunks else np.empty((0, 3)), params)
     if len(pts) == 0:
         raise SensorFailure("range_points", "no range returns")
