@@ -344,6 +344,31 @@ def test_compiled_ring_moments_match_sparse_ring_matrix() -> None:
         assert np.all(np.abs(np.einsum("ij,ij->i", nrm, want_n)) > 1.0 - 1e-9)
 
 
+def test_compiled_one_ring_covariances_equal_the_sparse_products_to_the_bit() -> None:
+    """One-ring covariances by the compiled pass equal the sparse products over the ring
+    matrix bit for bit (the SPG's rows, the symmetric closure's); a graph with a self entry
+    or an unsorted row is left to the sparse products (the same values too)."""
+    from scipy import sparse
+
+    from mks_sim.lowlevel import _gridknn
+    from mks_sim.lowlevel.normals import FixedGraph, _ring_cov, _ring_matrix, _sparse_cov
+
+    if not _gridknn.available():
+        pytest.skip("numba not importable")
+    rng = np.random.default_rng(7)
+    pts, _ = _cube(1500, 0.02, rng)
+    g = FixedGraph(build_graph(pts, m=8).adjacency)
+    for graph in (g, FixedGraph(g.symmetric)):
+        want = _sparse_cov(pts, _ring_matrix(graph, 1))
+        assert _gridknn.ring1_cov(graph.adjacency, pts - pts.mean(axis=0)) is not None
+        assert np.array_equal(_ring_cov(pts, graph, 1), want)
+    adj = sparse.csr_array(g.adjacency, copy=True)
+    adj.data[:] = 1.0
+    looped = FixedGraph(sparse.csr_array(adj + sparse.eye_array(len(pts), format="csr")))
+    assert _gridknn.ring1_cov(looped.adjacency, pts) is None
+    assert np.array_equal(_ring_cov(pts, looped, 1), _sparse_cov(pts, _ring_matrix(looped, 1)))
+
+
 def test_compiled_ring_moments_do_not_depend_on_the_threads() -> None:
     """The parallel kernel gives the same moments, to the bit, on one thread and on all,
     and on any number of chunks (each point's ring and sums are its own arithmetic)."""

@@ -353,3 +353,25 @@ def test_compiled_plane_counts_equal_the_products() -> None:
         off = np.einsum("ij,ij->i", nrm, pts[rng.integers(0, len(pts), 64)])
         want = (np.abs(nrm @ pts.T - off[:, None]) <= 0.01).sum(axis=1)
         np.testing.assert_array_equal(_gridknn.plane_counts(nrm, off, pts, 0.01), want)
+
+
+def test_neighbour_scatter_equals_numpys_sums_to_the_bit() -> None:
+    """The compiled scatter sums of ``spacing_and_noise`` equal numpy's (the mean over the
+    neighbours, the centred products summed per row) bit for bit, for neighbourhoods below,
+    at and above numpy's 8-term pairwise block."""
+    from mks_sim.lowlevel import _gridknn
+
+    if not _gridknn.available():
+        pytest.skip("numba unavailable")
+    rng = np.random.default_rng(21)
+    pts = rng.normal(size=(5000, 3)) * 0.01 + np.array([0.1, -0.2, 0.75])
+    for k in (2, 3, 7, 8, 9, 12, 16, 17, 40):
+        idx = rng.integers(0, len(pts), size=(300, k))
+        nb = pts[idx]
+        c = nb - nb.mean(axis=1, keepdims=True)
+        want = np.stack(
+            [(c[..., a] * c[..., b]).sum(axis=1) for a, b in
+             ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))], axis=1
+        )  # fmt: skip
+        got = _gridknn.neighbour_scatter(pts, idx)
+        assert np.array_equal(got, want), k

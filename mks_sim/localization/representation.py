@@ -141,13 +141,19 @@ def spacing_and_noise(
     else:
         d, idx = (tree if tree is not None else _tree(points)).query(probe, k=k)
     spacing = float(np.median(d[:, 1])) if k > 1 else 0.0
-    nb = points[idx]  # (P, k, 3)
-    c = nb - nb.mean(axis=1, keepdims=True)
     # the covariances' upper triangles, and their smallest eigenvalues in closed form
     # (numpy's batched einsum and eigvalsh: 2.7 ms per 800 probes)
-    cx, cy, cz = c[..., 0], c[..., 1], c[..., 2]
-    upper = [cx * cx, cx * cy, cx * cz, cy * cy, cy * cz, cz * cz]
-    lam0 = smallest_eigenvalue(np.stack([u.sum(axis=1) for u in upper], axis=1) / k)[0]
+    if _grid_answers(points):
+        from mks_sim.lowlevel import _gridknn
+
+        scatter = _gridknn.neighbour_scatter(points, idx)  # (the same sums, compiled)
+    else:
+        nb = points[idx]  # (P, k, 3)
+        c = nb - nb.mean(axis=1, keepdims=True)
+        cx, cy, cz = c[..., 0], c[..., 1], c[..., 2]
+        upper = [cx * cx, cx * cy, cx * cz, cy * cy, cy * cz, cz * cz]
+        scatter = np.stack([u.sum(axis=1) for u in upper], axis=1)
+    lam0 = smallest_eigenvalue(scatter / k)[0]
     return spacing, float(np.median(np.sqrt(np.clip(lam0, 0.0, None))))
 
 
@@ -379,8 +385,16 @@ class Representation:
         lab = self.labels
         row = np.repeat(np.arange(adj.shape[0]), np.diff(adj.indptr))
         same = lab[row] == lab[adj.indices]
+        if not adj.has_canonical_format:  # (the SPG's rows come sorted: not met)
+            return FixedGraph(
+                sparse.csr_array((adj.data[same], (row[same], adj.indices[same])), shape=adj.shape)
+            )
+        # the kept entries of each sorted row, in order: the CSR a (row, column) list would
+        # give, without its conversion (1.4 -> 0.2 ms for the workstation's 4,300 points)
+        indptr = np.zeros_like(adj.indptr)
+        np.cumsum(np.bincount(row[same], minlength=adj.shape[0]), out=indptr[1:])
         return FixedGraph(
-            sparse.csr_array((adj.data[same], (row[same], adj.indices[same])), shape=adj.shape)
+            sparse.csr_array((adj.data[same], adj.indices[same], indptr), shape=adj.shape)
         )
 
     def components(self, min_points: int = 30) -> list[IntArray]:

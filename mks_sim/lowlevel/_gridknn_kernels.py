@@ -580,3 +580,104 @@ def plane_counts(nrm, off, pts, threshold):
                 cnt += 1
         out[i] = cnt
     return out
+
+
+@nb.njit(cache=True)
+def neighbour_scatter(points, idx):
+    """(P, 6) scatter sums (xx xy xz yy yz zz) of each row's neighbours ``points[idx[p]]``
+    about their mean, added as numpy adds ``(c * c).sum(axis=1)`` after ``nb.mean(axis=1)``
+    for ``nb = points[idx]``: the mean row after row, each product sum pairwise (in order
+    below 8 terms, else 8 running partials combined in a tree, the rest in order)."""
+    P, k = idx.shape
+    out = np.empty((P, 6))
+    c = np.empty((k, 3))
+    r = np.empty(8)
+    for p in range(P):
+        m0 = points[idx[p, 0], 0]
+        m1 = points[idx[p, 0], 1]
+        m2 = points[idx[p, 0], 2]
+        for j in range(1, k):
+            q = idx[p, j]
+            m0 += points[q, 0]
+            m1 += points[q, 1]
+            m2 += points[q, 2]
+        m0 /= k
+        m1 /= k
+        m2 /= k
+        for j in range(k):
+            q = idx[p, j]
+            c[j, 0] = points[q, 0] - m0
+            c[j, 1] = points[q, 1] - m1
+            c[j, 2] = points[q, 2] - m2
+        t = 0
+        for a in range(3):
+            for b in range(a, 3):
+                if k < 8:
+                    s = c[0, a] * c[0, b]
+                    for j in range(1, k):
+                        s += c[j, a] * c[j, b]
+                else:
+                    for j in range(8):
+                        r[j] = c[j, a] * c[j, b]
+                    i = 8
+                    while i < k - (k % 8):
+                        for j in range(8):
+                            r[j] += c[i + j, a] * c[i + j, b]
+                        i += 8
+                    s = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+                    while i < k:
+                        s += c[i, a] * c[i, b]
+                        i += 1
+                out[p, t] = s
+                t += 1
+    return out
+
+
+@nb.njit(cache=True)
+def ring1_cov(indptr, indices, c):
+    """(N, 6) covariances (xx xy xz yy yz zz) over each point and its CSR row, as
+    ``normals._sparse_cov`` computes them with sparse products: first and second moments of
+    ``c`` summed over the row's columns with the point inserted in order, each divided by
+    the count, then ``second - mean_a mean_b``; and False (and no result) when a row is
+    not strictly ascending or holds its own point."""
+    n = c.shape[0]
+    out = np.empty((n, 6))
+    for i in range(n):
+        s0 = s1 = s2 = 0.0
+        t0 = t1 = t2 = t3 = t4 = t5 = 0.0
+        cnt = 0
+        own = False
+        e = indptr[i]
+        end = indptr[i + 1]
+        while e < end or not own:
+            if not own and (e == end or i < indices[e]):
+                j = i
+                own = True
+            else:
+                j = indices[e]
+                e += 1
+                if j == i or (e < end and indices[e] <= j):
+                    return out, False  # a self entry or a row not sorted: not canonical
+            x = c[j, 0]
+            y = c[j, 1]
+            z = c[j, 2]
+            s0 += x
+            s1 += y
+            s2 += z
+            t0 += x * x
+            t1 += x * y
+            t2 += x * z
+            t3 += y * y
+            t4 += y * z
+            t5 += z * z
+            cnt += 1
+        m0 = s0 / cnt
+        m1 = s1 / cnt
+        m2 = s2 / cnt
+        out[i, 0] = t0 / cnt - m0 * m0
+        out[i, 1] = t1 / cnt - m0 * m1
+        out[i, 2] = t2 / cnt - m0 * m2
+        out[i, 3] = t3 / cnt - m1 * m1
+        out[i, 4] = t4 / cnt - m1 * m2
+        out[i, 5] = t5 / cnt - m2 * m2
+    return out, True

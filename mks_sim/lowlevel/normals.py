@@ -189,13 +189,21 @@ def _ring_pca(pts: FloatArray, graph: GraphLike, rings: int) -> tuple[FloatArray
 
 
 def _ring_cov(pts: FloatArray, graph: GraphLike, rings: int) -> FloatArray:
-    """(N, 6) covariances of the neighbourhoods of ``rings`` SPG rings: one sparse product
-    for ring 1; more rings by the compiled breadth-first kernel
+    """(N, 6) covariances of the neighbourhoods of ``rings`` SPG rings: ring 1 by the
+    compiled twin of the sparse products (:func:`mks_sim.lowlevel._gridknn.ring1_cov`);
+    more rings by the compiled breadth-first kernel
     (:func:`mks_sim.lowlevel._regions_kernels.ring_moments`, no (N, N) ring matrix) when
     numba imports, else by :func:`_sparse_cov` over :func:`_ring_matrix` (the reference)."""
     from mks_sim.lowlevel import _gridknn
 
-    if rings < 2 or len(pts) < _COMPILED_MIN_POINTS or not _gridknn.available():
+    if len(pts) < _COMPILED_MIN_POINTS or not _gridknn.available():
+        return _sparse_cov(pts, _ring_matrix(graph, rings))
+    if rings < 2:  # the sparse products' values, without the ring matrix
+        adj = sparse.csr_array(graph.adjacency)
+        if adj.shape == (len(pts), len(pts)):
+            cov = _gridknn.ring1_cov(adj, pts - column_mean(pts))
+            if cov is not None:
+                return cov
         return _sparse_cov(pts, _ring_matrix(graph, rings))
     import numba
 

@@ -52,6 +52,8 @@ _MAX_RUNS = 4096
 _GRID_MIN_POINTS = 250_000
 # Rows the grid leaves (x N points) up to which they are answered by brute force, not a tree.
 _BRUTE_ENTRIES = 50_000_000
+# Distances per block of brute-force rows (bounds the (rows, N) matrix: 32 MB).
+_BRUTE_BLOCK = 4_000_000
 
 
 def _check_params(m: Neighbours, threshold: float | None) -> tuple[Neighbours, float | None]:
@@ -231,22 +233,35 @@ class SpatialProximityGraph:
         """Rows of a few points (static, unreordered ids) against all points, by brute force."""
         data = self._points_of(self._ids)
         lens, nbrs, dists = [], [], []
-        for i in ids.tolist():
-            d = self.metric.distance(data[i], data)
-            d[i] = math.inf  # not its own neighbour
+        n = len(data)
+        k = min(int(self.m), n - 1)
+        # rows in blocks: one broadcast distance matrix and one partition per block (the
+        # same distances as row by row: the metric is elementwise per row)
+        step = max(1, _BRUTE_BLOCK // max(n, 1))
+        for s in range(0, len(ids), step):
+            block = ids[s : s + step]
+            D = self.metric.distance(data[block][:, None, :], data[None, :, :])  # (B, N)
+            D[np.arange(len(block)), block] = math.inf  # not its own neighbour
             if self.threshold is not None:
-                d[d > self.threshold] = math.inf
-            k = min(int(self.m), len(d) - 1)
-            cand = np.argpartition(d, k - 1)[:k] if 0 < k < len(d) else np.arange(len(d))
-            # every point tied with the k-th distance competes on its index
-            cut = d[cand].max() if len(cand) else math.inf
-            cand = np.flatnonzero(d <= cut) if math.isfinite(cut) else cand[np.isfinite(d[cand])]
-            order = np.lexsort((cand, d[cand]))[:k]
-            sel = cand[order]
-            sel = sel[np.isfinite(d[sel])]
-            lens.append(len(sel))
-            nbrs.append(sel)
-            dists.append(d[sel])
+                D[D > self.threshold] = math.inf
+            # the k-th smallest distance of each row: every point tied with it competes
+            cuts = np.partition(D, k - 1, axis=1)[:, k - 1] if 0 < k < n else None
+            for r in range(len(block)):
+                d = D[r]
+                if cuts is None:
+                    cand = np.arange(n)
+                    cut = d.max() if n else math.inf
+                else:
+                    cut = cuts[r]
+                    cand = np.flatnonzero(d <= cut)
+                if not math.isfinite(cut):
+                    cand = cand[np.isfinite(d[cand])]
+                order = np.lexsort((cand, d[cand]))[:k]
+                sel = cand[order]
+                sel = sel[np.isfinite(d[sel])]
+                lens.append(len(sel))
+                nbrs.append(sel)
+                dists.append(d[sel])
         return (
             np.asarray(lens, np.intp),
             np.concatenate(nbrs).astype(np.intp) if nbrs else np.zeros(0, np.intp),
