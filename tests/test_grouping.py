@@ -469,3 +469,36 @@ def test_column_mean_is_numpys_axis0_mean_to_the_bit() -> None:
             if len(arr):
                 want = np.asarray(arr.mean(axis=0), dtype=np.float64)
                 assert column_mean(arr).tobytes() == want.tobytes()
+    for n in range(1, 600, 7):  # the short arrays of region fits, around the compiled bound
+        a = rng.normal(size=(n, 3)) * 0.02 + np.array([0.1, -0.3, 0.77])
+        assert column_mean(a).tobytes() == a.mean(axis=0).tobytes()
+
+
+def test_row_norms_are_numpys_norms_to_the_bit() -> None:
+    """``row_norms`` gives ``np.linalg.norm(a, axis=1)`` bit for bit (N x 3 by the three
+    squares in order, other shapes by numpy)."""
+    from mks_sim.lowlevel._gridknn import row_norms
+
+    rng = np.random.default_rng(22)
+    for _ in range(300):
+        a = rng.normal(size=(int(rng.integers(0, 2000)), 3)) * 10.0 ** rng.integers(-5, 3)
+        assert row_norms(a).tobytes() == np.linalg.norm(a, axis=1).tobytes()
+    b = rng.normal(size=(50, 4))
+    assert row_norms(b).tobytes() == np.linalg.norm(b, axis=1).tobytes()
+
+
+def test_median_is_numpys_median() -> None:
+    """``_gridknn.median`` equals ``np.median``: odd and even counts, short arrays (one
+    partition), long ones (bins), heavy ties, constant arrays, and a bin holding most of
+    the values (left to the partition)."""
+    from mks_sim.lowlevel._gridknn import median
+
+    rng = np.random.default_rng(23)
+    for t in range(120):
+        n = int(rng.integers(1, 60000)) if t % 3 else int(rng.integers(1, 50))
+        x = np.round(rng.gamma(2.0, 0.001, size=n), int(rng.integers(3, 8)))
+        if t % 10 == 0:
+            x[:] = 0.5
+        if t % 7 == 0:
+            x[: 3 * n // 4] = 0.25
+        assert median(x) == np.median(x), (t, n)

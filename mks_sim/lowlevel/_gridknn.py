@@ -37,11 +37,13 @@ __all__ = [
     "ball_rows",
     "column_mean",
     "grid_knn",
+    "median",
     "neighbour_scatter",
     "plane_counts",
     "plane_pairs",
     "probe_knn",
     "ring1_cov",
+    "row_norms",
     "sort_order",
 ]
 
@@ -111,6 +113,7 @@ def _compile() -> dict[str, Any]:
         "plane_counts": k.plane_counts,
         "neighbour_scatter": k.neighbour_scatter,
         "ring1_cov": k.ring1_cov,
+        "order_statistics": k.order_statistics,
     }
 
 
@@ -272,8 +275,9 @@ def probe_knn(
     return out_d, out_i, done
 
 
-#: Rows from which :func:`column_mean` adds them in the compiled loop.
-_COLUMN_MIN_ROWS = 512
+#: Rows from which :func:`column_mean` adds them in the compiled loop (numpy's mean costs
+#: several microseconds of checks even on a few rows: 300 rows 11.7 -> 3.7 us).
+_COLUMN_MIN_ROWS = 16
 
 
 def column_mean(a: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -404,3 +408,38 @@ def ring1_cov(adjacency: Any, c: NDArray[np.float64]) -> NDArray[np.float64] | N
         np.ascontiguousarray(c, dtype=np.float64),
     )  # fmt: skip
     return out if ok else None
+
+
+def row_norms(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``np.linalg.norm(a, axis=1)`` of an (N, 3) float64 array, to the bit (numpy adds the
+    three squares in order), without its dispatch: 700 rows in 5 us against 15."""
+    if a.ndim != 2 or a.shape[1] != 3:
+        return np.asarray(np.linalg.norm(a, axis=1), dtype=np.float64)
+    x, y, z = a[:, 0], a[:, 1], a[:, 2]
+    out: NDArray[np.float64] = np.sqrt(x * x + y * y + z * z)
+    return out
+
+
+#: Values from which :func:`median` selects in the compiled loop.
+_MEDIAN_MIN = 20000
+
+
+def median(x: NDArray[np.float64]) -> float:
+    """``np.median`` of a 1-D float64 array with no NaN: by one partition (numpy's checks and
+    copies cost several times it), or for large arrays by a compiled bin count and a sort of
+    the one or two bins holding the middle ranks (the SPG's 52,000 edge lengths, full of
+    ties from the voxel grid, in 0.1 ms against 0.6 for the partition; the partition when
+    those bins hold over a quarter of the values). The order statistics are exact either
+    way; an even count averages the two middle values as numpy does."""
+    n = len(x)
+    k = n // 2
+    if n >= _MEDIAN_MIN and available() and x.dtype == np.float64:
+        kern = _load()["order_statistics"]
+        lo_v, hi_v, ok = kern(np.ascontiguousarray(x), k - (1 - n % 2), k, 4096)
+        if ok:
+            return float(hi_v) if n % 2 else float((lo_v + hi_v) / 2.0)
+    if n % 2:
+        # (two ranks: numpy's selection of one rank is 3-4x slower at 1,000-13,000 values)
+        return float(np.partition(x, [k - 1, k] if k else k)[k])
+    part = np.partition(x, [k - 1, k])
+    return float((part[k - 1] + part[k]) / 2.0)

@@ -681,3 +681,53 @@ def ring1_cov(indptr, indices, c):
         out[i, 4] = t4 / cnt - m1 * m2
         out[i, 5] = t5 / cnt - m2 * m2
     return out, True
+
+
+@nb.njit(cache=True)
+def order_statistics(x, k0, k1, nbins):
+    """The k0-th and k1-th smallest (0-based, k0 <= k1) of the finite 1-D ``x``: counted into
+    ``nbins`` equal bins between the extremes (a monotone map, so ranks stay in order), then
+    only the bins holding the two ranks sorted; (nan, nan, False) when those bins hold over
+    a quarter of the values (a sort would then cost more than a partition)."""
+    n = x.shape[0]
+    lo = x[0]
+    hi = x[0]
+    for i in range(n):
+        v = x[i]
+        if v < lo:
+            lo = v
+        if v > hi:
+            hi = v
+    if lo == hi:
+        return lo, hi, True
+    scale = nbins / (hi - lo)
+    counts = np.zeros(nbins, np.int64)
+    for i in range(n):
+        b = min(int((x[i] - lo) * scale), nbins - 1)
+        counts[b] += 1
+    below = 0
+    b0 = -1
+    b1 = -1
+    first0 = 0
+    for b in range(nbins):
+        if b0 < 0 and below + counts[b] > k0:
+            b0 = b
+            first0 = below
+        if below + counts[b] > k1:
+            b1 = b
+            break
+        below += counts[b]
+    m = 0
+    for b in range(b0, b1 + 1):
+        m += counts[b]
+    if 4 * m > n:
+        return np.nan, np.nan, False
+    sel = np.empty(m)
+    j = 0
+    for i in range(n):
+        b = min(int((x[i] - lo) * scale), nbins - 1)
+        if b0 <= b <= b1:
+            sel[j] = x[i]
+            j += 1
+    sel.sort()
+    return sel[k0 - first0], sel[k1 - first0], True
