@@ -187,6 +187,18 @@ def test_pose_hypothesis_many_equals_one_by_one() -> None:
         PoseHypothesis.many(mats, refs, votes[:4], corrs)
     with pytest.raises(DataError, match=r"\(n, 2\)"):
         PoseHypothesis.many(mats[:1], refs[:1], [1], [np.arange(3)])
+    # correspondences of one shape (a matcher's: stacked once), int32 and empty ones
+    for same in (
+        [rng.integers(0, 9, size=(3, 2)).astype(np.int32) for _ in range(5)],
+        [np.zeros((0, 2), dtype=np.int64) for _ in range(5)],
+    ):
+        kept = [c.copy() for c in same]
+        stacked = PoseHypothesis.many(mats, refs, votes, same)
+        same[2][...] = 7  # the caller's arrays may change later
+        for k, h in enumerate(stacked):
+            one = PoseHypothesis(mats[k], refs[k], votes[k], kept[k])
+            np.testing.assert_array_equal(h.correspondences, one.correspondences)
+            assert h.correspondences.dtype == np.int64 and not h.correspondences.flags.writeable
 
 
 def test_rotation_from_covariance_batched_recovers_rotations_and_matches_single() -> None:

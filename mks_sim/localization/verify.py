@@ -357,7 +357,7 @@ def consistency(
         facing = np.full(len(P), -np.inf)
         for v in np.asarray(viewpoints, dtype=np.float64).reshape(-1, 3):
             ray = v - P
-            cos = np.einsum("ij,ij->i", N, ray) / np.maximum(np.linalg.norm(ray, axis=1), 1e-12)
+            cos = np.einsum("ij,ij->i", N, ray) / np.maximum(_gridknn.row_norms(ray), 1e-12)
             np.maximum(facing, cos, out=facing)
         seen &= facing > VIEW_FACING_COS
     centre = column_mean(P)

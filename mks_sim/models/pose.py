@@ -31,6 +31,22 @@ def _frozen(value: ArrayLike, dtype: type) -> NDArray[np.generic]:
     return arr
 
 
+def _stacked_pairs(pairs: Sequence[ArrayLike]) -> NDArray[np.int64] | None:
+    """K (n, 2) integer arrays of one shape as rows of one read-only (K, n, 2) int64 copy;
+    None when they differ in shape or are not (n, 2) integers."""
+    if not len(pairs):
+        return None
+    first = np.shape(pairs[0])
+    if len(first) != 2 or first[1] != 2 or any(np.shape(p) != first for p in pairs):
+        return None
+    stacked = np.array(pairs)
+    if stacked.dtype.kind not in "iu":
+        return None
+    out = stacked.astype(np.int64, copy=stacked.dtype != np.int64)
+    out.setflags(write=False)
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class PoseHypothesis:
     """A candidate transformation of a model into the detected (scene) frame.
@@ -142,25 +158,31 @@ class PoseHypothesis:
             )
         T.setflags(write=False)
         ref.setflags(write=False)
+        corrs = _stacked_pairs(correspondences)
+        if corrs is None:
+            corrs = []
+            for c in correspondences:
+                corr = _frozen(c, np.int64)
+                if corr.size == 0 and corr.shape != (0, 2):
+                    corr = _frozen(corr.reshape(0, 2), np.int64)
+                if corr.ndim != 2 or corr.shape[1] != 2:
+                    raise DataError(
+                        f"PoseHypothesis.correspondences: expected shape (n, 2), got {corr.shape}"
+                    )
+                corrs.append(corr)
         out = []
-        for i in range(k):
-            h = object.__new__(cls)
-            corr = _frozen(correspondences[i], np.int64)
-            if corr.size == 0 and corr.shape != (0, 2):
-                corr = _frozen(corr.reshape(0, 2), np.int64)
-            if corr.ndim != 2 or corr.shape[1] != 2:
-                raise DataError(
-                    f"PoseHypothesis.correspondences: expected shape (n, 2), got {corr.shape}"
-                )
-            for name, value in (
-                ("matrix", T[i]),
-                ("reference_point", ref[i]),
-                ("votes", int(votes[i])),
-                ("correspondences", corr),
-                ("rmse", math.nan),
-                ("score", math.nan),
-            ):
-                object.__setattr__(h, name, value)
+        new = object.__new__
+        for i, v in enumerate(votes):
+            h = new(cls)
+            # (the fields at once: a frozen dataclass's __setattr__ is refused, not its dict)
+            h.__dict__.update(
+                matrix=T[i],
+                reference_point=ref[i],
+                votes=int(v),
+                correspondences=corrs[i],
+                rmse=math.nan,
+                score=math.nan,
+            )
             out.append(h)
         return out
 
