@@ -502,3 +502,23 @@ def test_median_is_numpys_median() -> None:
         if t % 7 == 0:
             x[: 3 * n // 4] = 0.25
         assert median(x) == np.median(x), (t, n)
+
+
+def test_vertex_support_distances_equal_the_trees() -> None:
+    """The vertex support's nearest distances (all pairs for a face and a few candidates,
+    the tree beyond) equal ``cKDTree.query``'s bit for bit, ties on a coarse grid included."""
+    from scipy.spatial import cKDTree
+
+    from mks_sim.lowlevel import vertexes
+
+    rng = np.random.default_rng(24)
+    for t in range(200):
+        pts = rng.normal(size=(int(rng.integers(1, 700)), 3)) * 0.02 + 0.5
+        q = rng.normal(size=(int(rng.integers(1, 25)), 3)) * 0.03 + 0.5
+        if t % 2:
+            pts, q = np.round(pts, 3), np.round(q, 3)
+        want = cKDTree(pts).query(q)[0]
+        assert vertexes._nearest_distances(pts, q).tobytes() == want.tobytes()
+    big = rng.normal(size=(30000, 3))
+    q = rng.normal(size=(10, 3))
+    np.testing.assert_array_equal(vertexes._nearest_distances(big, q), cKDTree(big).query(q)[0])

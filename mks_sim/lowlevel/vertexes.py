@@ -51,6 +51,26 @@ class Vertexes:
         return len(self.points)
 
 
+#: Point-candidate pairs up to which :func:`_nearest_distances` compares all of them.
+_BRUTE_PAIRS = 200_000
+
+
+def _nearest_distances(points: FloatArray, queries: FloatArray) -> FloatArray:
+    """(Q,) distance from each query to its nearest point, as ``cKDTree(points).query``
+    computes it (``sqrt((dx*dx + dy*dy) + dz*dz)``, the point minus the query): by all
+    pairs for a face's few hundred points and a few candidates (no tree to build), by the
+    tree beyond :data:`_BRUTE_PAIRS` pairs."""
+    if len(points) * len(queries) > _BRUTE_PAIRS or points.shape[1] != 3:
+        return np.asarray(cKDTree(points, balanced_tree=False).query(queries)[0])
+    d = points[:, None, 0] - queries[None, :, 0]
+    sq = d * d
+    d = points[:, None, 1] - queries[None, :, 1]
+    sq += d * d
+    d = points[:, None, 2] - queries[None, :, 2]
+    sq += d * d
+    return np.asarray(np.sqrt(sq.min(axis=0)))
+
+
 def plane_vertexes(
     regions: Sequence[PlanarRegion],
     points: ArrayLike,
@@ -84,7 +104,6 @@ def plane_vertexes(
     if tolerance <= 0:
         raise DataError(f"plane_vertexes: tolerance must be > 0, got {tolerance}")
     planes = [r.plane for r in regions] + list(extra_planes)
-    trees: dict[int, cKDTree] = {}  # per face with candidates (only distances are asked)
     n_regions = len(regions)
     sin_min = np.sin(np.radians(min_angle_deg))
     cands: list[tuple[FloatArray, tuple[int, int, int]]] = []
@@ -110,14 +129,13 @@ def plane_vertexes(
         ok = (pair_sin.min(axis=1) >= sin_min) & (np.abs(np.linalg.det(N)) >= sin_min * sin_min)
         V = np.linalg.solve(N[ok], offsets[triples[ok]][..., None])[..., 0]  # (C', 3)
         cands = [(v, (int(t[0]), int(t[1]), int(t[2]))) for v, t in zip(V, triples[ok])]
-    # Support: one batched k-d tree query per face over the candidates it takes part in.
+    # Support: per face, the nearest of its points to each candidate it takes part in.
     worst = np.zeros(len(cands))
     for t in range(n_regions):
         mine = [i for i, (_, tr) in enumerate(cands) if t in tr]
         if mine:
-            if t not in trees:
-                trees[t] = cKDTree(pts[regions[t].indices], balanced_tree=False)
-            dist, _ = trees[t].query(np.stack([cands[i][0] for i in mine]))
+            face = pts[regions[t].indices]
+            dist = _nearest_distances(face, np.stack([cands[i][0] for i in mine]))
             worst[mine] = np.maximum(worst[mine], dist)
     found = [(v, tr, float(w)) for (v, tr), w in zip(cands, worst) if w <= tolerance]
     merge = tolerance / 2 if merge_distance is None else merge_distance
