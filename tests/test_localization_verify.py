@@ -563,3 +563,35 @@ def test_compiled_ball_and_plane_queries_follow_the_trees_rule() -> None:
     assert ties > 20  # the boundary was tested
     lens, flat = _gridknn.plane_pairs(np.zeros((5, 2)), np.zeros((0, 2)), 0.5)
     assert len(lens) == 0 and len(flat) == 0
+
+
+def test_near_points_answer_as_the_trees_upper_bound_query() -> None:
+    """``space_any`` (and ``NearPoints``, and ``batch_explained`` over it) says a query has
+    a point strictly within r exactly when ``cKDTree.query`` with that upper bound finds
+    one: ties on a coarse grid (where < and <= part), flat sets, far queries, none."""
+    from mks_sim.localization.verify import NearPoints, batch_explained
+    from mks_sim.lowlevel import _gridknn
+
+    rng = np.random.default_rng(31)
+    ties = 0
+    for t in range(60):
+        n = int(rng.integers(1, 2500))
+        pts = rng.integers(-40, 41, size=(n, 3)) / 400.0
+        if t % 4 == 0:
+            pts[:, 2] = 0.75  # a flat set (a table)
+        q = np.vstack([rng.integers(-44, 45, size=(400, 3)) / 400.0, [[5.0, 5.0, 5.0]]])
+        r = float(rng.choice([0.005, 0.0075, 0.01]))
+        want = np.isfinite(cKDTree(pts).query(q, distance_upper_bound=r)[0])
+        if _gridknn.available():
+            np.testing.assert_array_equal(_gridknn.space_any(pts, q, r), want)
+        np.testing.assert_array_equal(NearPoints(pts).any_nearer(q, r), want)
+        sq = ((pts[:, None, :] - q[None, :, :]) ** 2).sum(axis=2)
+        ties += int(np.sum(sq == r * r))
+    assert ties > 20
+    model = rng.normal(size=(200, 3)) * 0.02
+    poses = np.stack([make_transform(np.eye(3), rng.normal(size=3) * 0.01) for _ in range(4)])
+    scene = rng.normal(size=(3000, 3)) * 0.02
+    np.testing.assert_array_equal(
+        batch_explained(model, poses, NearPoints(scene), 0.003),
+        batch_explained(model, poses, cKDTree(scene), 0.003),
+    )

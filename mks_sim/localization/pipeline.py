@@ -47,7 +47,7 @@ from mks_sim.localization.representation import (
     spacing_and_noise,
     voxel_average,
 )
-from mks_sim.localization.verify import Consistency, consistency, find_table, rank
+from mks_sim.localization.verify import Consistency, NearPoints, consistency, find_table, rank
 from mks_sim.lowlevel._gridknn import column_mean
 from mks_sim.lowlevel.grouping import (
     PlanarRegion,
@@ -1056,7 +1056,7 @@ def localize_polyhedral(
     surface_pts = np.asarray(model.surface_points(), dtype=np.float64)
     surface_nrm = np.asarray(model.surface_normals(), dtype=np.float64)
     # the coverage tests' (once, not per test; the representation's when nothing was set aside)
-    objects_tree = rep.objects_tree if bool(keep.all()) else cKDTree(objects)
+    objects_tree = rep.objects_tree if bool(keep.all()) else NearPoints(objects)
     checked: dict[int, tuple[PoseHypothesis, Consistency]] = {}
 
     def check(h: PoseHypothesis) -> Consistency:
@@ -1266,7 +1266,7 @@ def _settled(
     checks: list[Consistency],
     order: list[int],
     model: Any,
-    objects_tree: cKDTree,
+    objects_tree: cKDTree | NearPoints,
     d: float,
 ) -> bool:
     """The best-ranked candidate is consistent and shows at least what one view does (not
@@ -1408,7 +1408,7 @@ def _top(candidates: list[PoseHypothesis], n: int) -> list[int]:
 
 
 def _best_coarse(
-    hyps: list[PoseHypothesis], model: Any, objects_tree: cKDTree, d: float, n: int
+    hyps: list[PoseHypothesis], model: Any, objects_tree: cKDTree | NearPoints, d: float, n: int
 ) -> list[PoseHypothesis]:
     """The ``n`` coarse poses explaining the most object points (one batch query on the
     object points' tree)."""
@@ -1446,7 +1446,7 @@ def _best_covers_little(
     checks: list[Consistency],
     order: list[int],
     model: Any,
-    objects_tree: cKDTree,
+    objects_tree: cKDTree | NearPoints,
     d: float,
 ) -> bool:
     """No consistent candidate, or the best shows less of the model's surface than one view

@@ -31,6 +31,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "Consistency",
+    "NearPoints",
     "batch_explained",
     "consistency",
     "find_table",
@@ -108,10 +109,32 @@ def find_table(
     return plane, float(band), inl
 
 
+class NearPoints:
+    """A point set asked which queries have one of its points strictly within a distance
+    (the coverage tests' question: a finite distance from ``cKDTree.query`` with
+    ``distance_upper_bound``), answered by the compiled grid
+    (:func:`~mks_sim.lowlevel._gridknn.space_any`: no tree to build) when numba imports,
+    else by a k-d tree built on first use; the same answers either way."""
+
+    def __init__(self, points: FloatArray) -> None:
+        self.points = np.ascontiguousarray(points, dtype=np.float64)
+        self.n = len(self.points)
+        self.compiled = _gridknn.available()
+        self._tree: cKDTree | None = None
+
+    def any_nearer(self, queries: FloatArray, r: float) -> NDArray[np.bool_]:
+        """(Q,) some point lies strictly within ``r`` of the query."""
+        if self.compiled:
+            return _gridknn.space_any(self.points, queries, r)
+        if self._tree is None:
+            self._tree = cKDTree(self.points)
+        return np.isfinite(self._tree.query(queries, distance_upper_bound=r)[0])
+
+
 def batch_explained(
     model_points: FloatArray,
     matrices: FloatArray,
-    scene_tree: cKDTree,
+    scene_tree: cKDTree | NearPoints,
     distance: float,
 ) -> NDArray[np.intp]:
     """(K,) for each of K poses, how many of the model samples land within ``distance`` of a
@@ -120,7 +143,7 @@ def batch_explained(
     Args:
         model_points: (M, 3) model samples (model frame), e.g. a few hundred.
         matrices: (K, 4, 4) model -> scene poses.
-        scene_tree: k-d tree of the scene points.
+        scene_tree: k-d tree of the scene points (or :class:`NearPoints` of them).
         distance: match distance.
     """
     T = np.asarray(matrices, dtype=np.float64).reshape(-1, 4, 4)
@@ -128,14 +151,17 @@ def batch_explained(
         return np.zeros(0, dtype=np.intp)
     # (K, M, 3): p R^T + t by matmul (einsum: several times slower at these shapes)
     moved = np.matmul(model_points[None], np.transpose(T[:, :3, :3], (0, 2, 1))) + T[:, None, :3, 3]
-    d, _ = scene_tree.query(moved.reshape(-1, 3), distance_upper_bound=distance)
-    return np.asarray(np.isfinite(d).reshape(len(T), -1).sum(axis=1), dtype=np.intp)
+    if isinstance(scene_tree, NearPoints):
+        hit = scene_tree.any_nearer(moved.reshape(-1, 3), distance)
+    else:
+        hit = np.isfinite(scene_tree.query(moved.reshape(-1, 3), distance_upper_bound=distance)[0])
+    return np.asarray(hit.reshape(len(T), -1).sum(axis=1), dtype=np.intp)
 
 
 def surface_coverage(
     model_points: FloatArray,
     matrices: FloatArray,
-    scene_tree: cKDTree,
+    scene_tree: cKDTree | NearPoints,
     distance: float,
     max_samples: int = 1000,
 ) -> FloatArray:

@@ -731,3 +731,62 @@ def order_statistics(x, k0, k1, nbins):
             j += 1
     sel.sort()
     return sel[k0 - first0], sel[k1 - first0], True
+
+
+@nb.njit(cache=True)
+def space_any(pts, queries, rr, lo, h, nx, ny, nz):
+    """(Q,) whether some point of ``pts`` lies strictly within the ball of each query:
+    ``(dx*dx + dy*dy) + dz*dz < rr`` (the k-d tree's sums; its ``query`` with
+    ``distance_upper_bound``). Cells of edge ``h >= sqrt(rr)`` from ``lo``, nx x ny x nz
+    of them covering ``pts``: a match lies in the 3 x 3 x 3 cells around the query's."""
+    n = pts.shape[0]
+    key = np.empty(n, np.int64)
+    start = np.zeros(nx * ny * nz + 1, np.int64)
+    for i in range(n):
+        cx = min(max(int(math.floor((pts[i, 0] - lo[0]) / h)), 0), nx - 1)
+        cy = min(max(int(math.floor((pts[i, 1] - lo[1]) / h)), 0), ny - 1)
+        cz = min(max(int(math.floor((pts[i, 2] - lo[2]) / h)), 0), nz - 1)
+        key[i] = (cx * ny + cy) * nz + cz
+        start[key[i] + 1] += 1
+    for c in range(nx * ny * nz):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        order[fill[key[i]]] = i
+        fill[key[i]] += 1
+    nq = queries.shape[0]
+    out = np.zeros(nq, np.bool_)
+    for q in range(nq):
+        qx = queries[q, 0]
+        qy = queries[q, 1]
+        qz = queries[q, 2]
+        fx = math.floor((qx - lo[0]) / h)
+        fy = math.floor((qy - lo[1]) / h)
+        fz = math.floor((qz - lo[2]) / h)
+        if fx < -1.0 or fy < -1.0 or fz < -1.0 or fx > nx or fy > ny or fz > nz:
+            continue
+        cx = int(fx)
+        cy = int(fy)
+        cz = int(fz)
+        found = False
+        for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
+            for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
+                for gz in range(max(cz - 1, 0), min(cz + 2, nz)):
+                    c = (gx * ny + gy) * nz + gz
+                    for e in range(start[c], start[c + 1]):
+                        j = order[e]
+                        dx = pts[j, 0] - qx
+                        dy = pts[j, 1] - qy
+                        dz = pts[j, 2] - qz
+                        if dx * dx + dy * dy + dz * dz < rr:
+                            found = True
+                            break
+                    if found:
+                        break
+                if found:
+                    break
+            if found:
+                break
+        out[q] = found
+    return out
