@@ -325,6 +325,16 @@ def test_probe_knn_matches_brute_force_and_leaves_far_rows_to_the_tree() -> None
     assert not done[-1] and done[:-1].all()
     np.testing.assert_array_equal(idx[:-1], want[:-1])
     np.testing.assert_array_equal(d[:-1], np.take_along_axis(brute, want, axis=1)[:-1])
+    import numba  # the probes run in parallel chunks: the same rows on one thread
+
+    old = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        d1, idx1, done1 = _gridknn.probe_knn(pts, rows, 12)
+    finally:
+        numba.set_num_threads(old)
+    assert np.array_equal(done1, done) and np.array_equal(idx1[done], idx[done])
+    assert np.array_equal(d1[done], d[done])
     tree = cKDTree(pts)
     for probes in (300, 20000):  # probes drawn, and every point a probe
         with_tree = spacing_and_noise(pts, np.random.default_rng(1), tree, probes=probes)

@@ -473,7 +473,7 @@ def _segment_verified(
     cover = surface_coverage(
         surface.points,
         np.stack([v.hypothesis.matrix for v in verified]),
-        cKDTree(seg_pts),
+        NearPoints(seg_pts),  # (the tree's answers, without its build)
         cover_distance,
     )
     out = []

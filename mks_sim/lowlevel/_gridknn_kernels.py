@@ -360,7 +360,7 @@ def column_keys(pts, lo, h, nx, ny):
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, parallel=True)
 def probe_rows(
     pts, sx, sy, sz, rows, k, lo, h, nx, ny, start, order, margin, max_ring, max_block, out_d,
     out_i, done,
@@ -369,66 +369,88 @@ def probe_rows(
     each probe row, from the (2r+1)^2 columns around its own on an (x, y) grid of cell h,
     r growing until every point outside them is provably farther than the k-th (at most
     ``max_ring``, and blocks of at most ``max_block`` points: a row not proven by then is
-    left not done; a far outlier that stretches the grid leaves the dense rest to a tree)."""
-    best_d2 = np.empty(k)
-    best_i = np.empty(k, np.int64)
-    for p in range(rows.shape[0]):
-        i = rows[p]
-        qx = pts[i, 0]
-        qy = pts[i, 1]
-        qz = pts[i, 2]
-        cx = min(max(int(math.floor((qx - lo[0]) / h)), 0), nx - 1)
-        cy = min(max(int(math.floor((qy - lo[1]) / h)), 0), ny - 1)
-        for r in range(1, max_ring + 1):
-            x0 = max(cx - r, 0)
-            x1 = min(cx + r, nx - 1)
-            y0 = max(cy - r, 0)
-            y1 = min(cy + r, ny - 1)
-            total = 0
-            for x in range(x0, x1 + 1):
-                total += start[x * ny + y1 + 1] - start[x * ny + y0]
-            if total > max_block:
-                break
+    left not done; a far outlier that stretches the grid leaves the dense rest to a tree).
+
+    Each ring ranks only the columns the last one did not (the k best by (distance, index)
+    do not depend on the order they are met in); chunks of probes run in parallel, each
+    probe's answer the same whichever thread runs it."""
+    n_rows = rows.shape[0]
+    nchunk = max(1, min((n_rows + 63) // 64, 8))
+    size = (n_rows + nchunk - 1) // nchunk
+    for ch in nb.prange(nchunk):
+        best_d2 = np.empty(k)
+        best_i = np.empty(k, np.int64)
+        for p in range(ch * size, min(n_rows, (ch + 1) * size)):
+            i = rows[p]
+            qx = pts[i, 0]
+            qy = pts[i, 1]
+            qz = pts[i, 2]
+            cx = min(max(int(math.floor((qx - lo[0]) / h)), 0), nx - 1)
+            cy = min(max(int(math.floor((qy - lo[1]) / h)), 0), ny - 1)
             cnt = 0
-            for x in range(x0, x1 + 1):
-                for col in range(x * ny + y0, x * ny + y1 + 1):
-                    for s in range(start[col], start[col + 1]):
-                        dx = qx - sx[s]
-                        dy = qy - sy[s]
-                        dz = qz - sz[s]
-                        e2 = (dx * dx + dy * dy) + dz * dz
-                        j = order[s]
-                        if cnt == k:
-                            if e2 > best_d2[k - 1] or (e2 == best_d2[k - 1] and j > best_i[k - 1]):
-                                continue
-                            u = k - 1
-                        else:
-                            u = cnt
-                            cnt += 1
-                        while u > 0 and (
-                            best_d2[u - 1] > e2 or (best_d2[u - 1] == e2 and best_i[u - 1] > j)
-                        ):
-                            best_d2[u] = best_d2[u - 1]
-                            best_i[u] = best_i[u - 1]
-                            u -= 1
-                        best_d2[u] = e2
-                        best_i[u] = j
-            # points outside the block are at least this far in (x, y) alone
-            cov = np.inf
-            if x0 > 0:
-                cov = min(cov, qx - (lo[0] + x0 * h))
-            if x1 < nx - 1:
-                cov = min(cov, lo[0] + (x1 + 1) * h - qx)
-            if y0 > 0:
-                cov = min(cov, qy - (lo[1] + y0 * h))
-            if y1 < ny - 1:
-                cov = min(cov, lo[1] + (y1 + 1) * h - qy)
-            if cnt == k and math.sqrt(best_d2[k - 1]) < cov - margin:
-                for u in range(k):
-                    out_d[p, u] = math.sqrt(best_d2[u])
-                    out_i[p, u] = best_i[u]
-                done[p] = True
-                break
+            px0 = 1
+            px1 = 0  # the last ring's block (none yet)
+            py0 = 1
+            py1 = 0
+            for r in range(1, max_ring + 1):
+                x0 = max(cx - r, 0)
+                x1 = min(cx + r, nx - 1)
+                y0 = max(cy - r, 0)
+                y1 = min(cy + r, ny - 1)
+                total = 0
+                for x in range(x0, x1 + 1):
+                    total += start[x * ny + y1 + 1] - start[x * ny + y0]
+                if total > max_block:
+                    break
+                for x in range(x0, x1 + 1):
+                    inner = px0 <= x <= px1
+                    for y in range(y0, y1 + 1):
+                        if inner and py0 <= y <= py1:
+                            continue  # ranked by the last ring
+                        col = x * ny + y
+                        for s in range(start[col], start[col + 1]):
+                            dx = qx - sx[s]
+                            dy = qy - sy[s]
+                            dz = qz - sz[s]
+                            e2 = (dx * dx + dy * dy) + dz * dz
+                            j = order[s]
+                            if cnt == k:
+                                if e2 > best_d2[k - 1] or (
+                                    e2 == best_d2[k - 1] and j > best_i[k - 1]
+                                ):
+                                    continue
+                                u = k - 1
+                            else:
+                                u = cnt
+                                cnt += 1
+                            while u > 0 and (
+                                best_d2[u - 1] > e2 or (best_d2[u - 1] == e2 and best_i[u - 1] > j)
+                            ):
+                                best_d2[u] = best_d2[u - 1]
+                                best_i[u] = best_i[u - 1]
+                                u -= 1
+                            best_d2[u] = e2
+                            best_i[u] = j
+                px0 = x0
+                px1 = x1
+                py0 = y0
+                py1 = y1
+                # points outside the block are at least this far in (x, y) alone
+                cov = np.inf
+                if x0 > 0:
+                    cov = min(cov, qx - (lo[0] + x0 * h))
+                if x1 < nx - 1:
+                    cov = min(cov, lo[0] + (x1 + 1) * h - qx)
+                if y0 > 0:
+                    cov = min(cov, qy - (lo[1] + y0 * h))
+                if y1 < ny - 1:
+                    cov = min(cov, lo[1] + (y1 + 1) * h - qy)
+                if cnt == k and math.sqrt(best_d2[k - 1]) < cov - margin:
+                    for u in range(k):
+                        out_d[p, u] = math.sqrt(best_d2[u])
+                        out_i[p, u] = best_i[u]
+                    done[p] = True
+                    break
 
 
 @nb.njit(cache=True)
