@@ -44,6 +44,7 @@ __all__ = [
     "probe_knn",
     "ring1_cov",
     "row_norms",
+    "smallest_vectors",
     "sort_order",
     "space_any",
 ]
@@ -116,6 +117,7 @@ def _compile() -> dict[str, Any]:
         "ring1_cov": k.ring1_cov,
         "order_statistics": k.order_statistics,
         "space_any": k.space_any,
+        "smallest_vectors": k.smallest_vectors,
     }
 
 
@@ -469,3 +471,20 @@ def space_any(
         nx, ny, nz = (int(e / h) + 1 for e in ext)
     out: NDArray[np.bool_] = _load()["space_any"](pts, qs, float(r) * float(r), lo, h, nx, ny, nz)
     return out
+
+
+def smallest_vectors(
+    cov: NDArray[np.float64],
+    lam0: NDArray[np.float64],
+    q: NDArray[np.float64],
+    safe: NDArray[np.bool_],
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """(normals (N, 3), degenerate (N,)): the eigenvectors of the smallest eigenvalues of N
+    symmetric 3x3 matrices, as :func:`mks_sim.lowlevel.normals._smallest_eigen` computes
+    them with numpy (its cross products, norms, first largest and division, to the bit), in
+    one compiled pass; the degenerate rows are the caller's (eigh). Needs :func:`available`."""
+    out, bad = _load()["smallest_vectors"](
+        np.ascontiguousarray(cov, dtype=np.float64), np.ascontiguousarray(lam0, dtype=np.float64),
+        np.ascontiguousarray(q, dtype=np.float64), np.ascontiguousarray(safe, dtype=np.bool_),
+    )  # fmt: skip
+    return out, bad

@@ -812,3 +812,58 @@ def space_any(pts, queries, rr, lo, h, nx, ny, nz):
                 break
         out[q] = found
     return out
+
+
+@nb.njit(cache=True)
+def smallest_vectors(cov, lam0, q, safe):
+    """The unit eigenvectors of the smallest eigenvalues ``lam0`` of N symmetric 3x3
+    matrices (``cov`` (N, 6) upper triangles; ``q`` a third of each trace; ``safe`` the
+    closed form applies) as ``normals._smallest_eigen`` computes them with numpy: the
+    largest of the cross products of two rows of ``C - lam0 I`` (numpy's cross and norm
+    arithmetic, the first largest), divided by its length; and the (N,) rows where that is
+    degenerate (left to the caller: numpy's eigh)."""
+    n = cov.shape[0]
+    out = np.empty((n, 3))
+    bad = np.zeros(n, np.bool_)
+    c = np.empty((3, 3))
+    nrm = np.empty(3)
+    for i in range(n):
+        l0 = lam0[i]
+        a00 = cov[i, 0] - l0
+        a01 = cov[i, 1]
+        a02 = cov[i, 2]
+        a11 = cov[i, 3] - l0
+        a12 = cov[i, 4]
+        a22 = cov[i, 5] - l0
+        # rows r0 = (a00, a01, a02), r1 = (a01, a11, a12), r2 = (a02, a12, a22)
+        c[0, 0] = a01 * a12 - a02 * a11  # r0 x r1
+        c[0, 1] = a02 * a01 - a00 * a12
+        c[0, 2] = a00 * a11 - a01 * a01
+        c[1, 0] = a01 * a22 - a02 * a12  # r0 x r2
+        c[1, 1] = a02 * a02 - a00 * a22
+        c[1, 2] = a00 * a12 - a01 * a02
+        c[2, 0] = a11 * a22 - a12 * a12  # r1 x r2
+        c[2, 1] = a12 * a02 - a01 * a22
+        c[2, 2] = a01 * a12 - a11 * a02
+        for k in range(3):
+            nrm[k] = math.sqrt(c[k, 0] * c[k, 0] + c[k, 1] * c[k, 1] + c[k, 2] * c[k, 2])
+        best = 0
+        bv = nrm[0]
+        if not math.isnan(bv):
+            for k in range(1, 3):
+                if math.isnan(nrm[k]):
+                    best = k
+                    break
+                if nrm[k] > bv:
+                    best = k
+                    bv = nrm[k]
+        nb_ = nrm[best]
+        m = max(abs(l0), abs(q[i]))
+        scale = m * m
+        b = (not safe[i]) or nb_ <= 1e-10 * max(scale, 1e-300)
+        bad[i] = b
+        d = 1.0 if b else nb_
+        out[i, 0] = c[best, 0] / d
+        out[i, 1] = c[best, 1] / d
+        out[i, 2] = c[best, 2] / d
+    return out, bad
