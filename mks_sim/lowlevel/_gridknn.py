@@ -181,8 +181,8 @@ def grid_knn(
     if n < 2:
         return nbr, dist, lens, done
     # (per column: numpy's axis-0 min and max of (N, 3) are ~20x slower)
-    lo = np.array([pts[:, d].min() for d in range(kdim)])
-    ext = np.array([pts[:, d].max() for d in range(kdim)]) - lo
+    lo = np.array([pts[:, d].min() for d in range(3)])
+    ext = np.array([pts[:, d].max() for d in range(3)]) - lo
     if not np.any(ext > 0):
         return nbr, dist, lens, done
     h = _cell_size(pts, lo, ext, m)

@@ -93,10 +93,24 @@ class SurfaceNormals:
     curvature: FloatArray
 
 
+#: Points from which :func:`build_graph` builds the SPG on the compiled grid.
+_GRID_GRAPH_MIN_POINTS = 500
+
+
 def build_graph(points: FloatArray, m: int = 12, threshold: float | None = None) -> GraphLike:
     """``SpatialProximityGraph(points, m=m, threshold=threshold)`` (the one SPG; this name is
-    kept for callers outside the low level until they construct the SPG themselves)."""
-    return SpatialProximityGraph(points, m=m, threshold=threshold)
+    kept for callers outside the low level until they construct the SPG themselves): on the
+    compiled grid from :data:`_GRID_GRAPH_MIN_POINTS` points when numba imports (the
+    grouping's kernels have imported it; the same graph as the tree's, in a fraction of
+    the time: ``localize_cloud``'s object points of a 640 x 480 scan), else by the tree."""
+    from mks_sim.lowlevel import _gridknn
+
+    pts = np.asarray(points, dtype=np.float64)
+    grid = (
+        pts.ndim == 2 and len(pts) >= _GRID_GRAPH_MIN_POINTS and pts.shape[1] <= 3
+        and _gridknn.available()
+    )  # fmt: skip
+    return SpatialProximityGraph(points, m=m, threshold=threshold, method="grid" if grid else "auto")
 
 
 def neighbour_table(
