@@ -487,6 +487,20 @@ def test_row_norms_are_numpys_norms_to_the_bit() -> None:
     assert row_norms(b).tobytes() == np.linalg.norm(b, axis=1).tobytes()
 
 
+def test_norm_within_takes_the_rows_numpys_norm_takes() -> None:
+    """``norm_within`` returns the rows ``np.linalg.norm(points - c, axis=1) <= r`` keeps,
+    radii set to some rows' own norms (the boundary) included."""
+    from mks_sim.lowlevel._gridknn import norm_within
+
+    rng = np.random.default_rng(26)
+    for _ in range(200):
+        pts = np.round(rng.normal(size=(int(rng.integers(0, 3000)), 3)) * 0.05, 4)
+        c = np.round(rng.normal(size=3) * 0.02, 4)
+        norms = np.linalg.norm(pts - c, axis=1)
+        r = float(norms[rng.integers(len(norms))]) if len(norms) else 0.05
+        np.testing.assert_array_equal(norm_within(pts, c, r), np.flatnonzero(norms <= r))
+
+
 def test_median_is_numpys_median() -> None:
     """``_gridknn.median`` equals ``np.median``: odd and even counts, short arrays (one
     partition), long ones (bins), heavy ties, constant arrays, and a bin holding most of

@@ -48,7 +48,7 @@ from mks_sim.localization.representation import (
     voxel_average,
 )
 from mks_sim.localization.verify import Consistency, NearPoints, consistency, find_table, rank
-from mks_sim.lowlevel._gridknn import column_mean
+from mks_sim.lowlevel._gridknn import column_mean, norm_within
 from mks_sim.lowlevel.grouping import (
     PlanarRegion,
     Plane,
@@ -823,9 +823,9 @@ def _polish_full_resolution(
     from mks_sim.models.refine import icp_point_to_plane
 
     T = np.asarray(h.matrix, dtype=np.float64)
-    centre = T[:3, :3] @ surface.points.mean(axis=0) + T[:3, 3]
+    centre = T[:3, :3] @ column_mean(surface.points) + T[:3, 3]
     radius = 0.5 * surface.size + 2.0 * voxel
-    near = raw[np.linalg.norm(raw - centre, axis=1) <= radius]
+    near = raw[norm_within(raw, centre, radius)]  # (the norm's rows, compiled)
     if len(near) < 30:
         return h
     if len(near) > max_points:
@@ -1567,7 +1567,7 @@ def _points_near(T: FloatArray, pts: FloatArray, objects: FloatArray, d: float) 
     centre = column_mean(pts)
     radius = float(np.max(np.linalg.norm(pts - centre, axis=1)))
     c = T[:3, :3] @ centre + T[:3, 3]
-    return objects[np.linalg.norm(objects - c, axis=1) <= radius + 2 * d]
+    return objects[norm_within(objects, c, radius + 2 * d)]
 
 
 def _refine_near(

@@ -83,7 +83,7 @@ def find_table(
     plane, _ = fit_plane_ransac(points, threshold, rng, iterations=150)
     d = plane.distance(points)
     near = np.abs(d) <= 3.0 * threshold
-    band = max(threshold, 4.0 * 1.4826 * float(np.median(np.abs(d[near]))))
+    band = max(threshold, 4.0 * 1.4826 * _gridknn.median(np.abs(d[near])))
     inl = np.abs(d) <= band
     off = np.abs(d) > 2.0 * band  # clearly off the plane: objects (and outliers)
     if inl.mean() < min_fraction or off.sum() < 10:

@@ -39,6 +39,7 @@ __all__ = [
     "grid_knn",
     "median",
     "neighbour_scatter",
+    "norm_within",
     "plane_counts",
     "plane_pairs",
     "probe_knn",
@@ -118,6 +119,7 @@ def _compile() -> dict[str, Any]:
         "order_statistics": k.order_statistics,
         "space_any": k.space_any,
         "smallest_vectors": k.smallest_vectors,
+        "norm_within": k.norm_within,
     }
 
 
@@ -437,6 +439,8 @@ def median(x: NDArray[np.float64]) -> float:
     way; an even count averages the two middle values as numpy does."""
     n = len(x)
     k = n // 2
+    if n == 0:
+        return math.nan  # (np.median's answer, without its warning)
     if n >= _MEDIAN_MIN and available() and x.dtype == np.float64:
         kern = _load()["order_statistics"]
         lo_v, hi_v, ok = kern(np.ascontiguousarray(x), k - (1 - n % 2), k, 4096)
@@ -488,3 +492,19 @@ def smallest_vectors(
         np.ascontiguousarray(q, dtype=np.float64), np.ascontiguousarray(safe, dtype=np.bool_),
     )  # fmt: skip
     return out, bad
+
+
+def norm_within(
+    points: NDArray[np.float64], centre: NDArray[np.float64], r: float
+) -> NDArray[np.intp]:
+    """Ascending indices of the (N, 3) ``points`` with ``np.linalg.norm(points - centre,
+    axis=1) <= r``, the same rows (the norm's arithmetic, to the bit) in one compiled pass
+    without the (N, 3) and (N,) temporaries (a 640 x 480 scan: 0.5 ms against 5)."""
+    c = np.asarray(centre, dtype=np.float64).reshape(3)
+    if points.ndim != 2 or points.shape[1] != 3 or not available():
+        return np.flatnonzero(row_norms(points - c) <= r)
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    out: NDArray[np.intp] = _load()["norm_within"](pts, c[0], c[1], c[2], float(r)).astype(
+        np.intp
+    )
+    return out

@@ -867,3 +867,20 @@ def smallest_vectors(cov, lam0, q, safe):
         out[i, 1] = c[best, 1] / d
         out[i, 2] = c[best, 2] / d
     return out, bad
+
+
+@nb.njit(cache=True)
+def norm_within(pts, c0, c1, c2, r):
+    """Ascending indices of the rows of ``pts`` with ``sqrt((dx*dx + dy*dy) + dz*dz) <= r``,
+    ``d = pts - c``: numpy's ``np.linalg.norm(pts - c, axis=1) <= r``, to the bit."""
+    n = pts.shape[0]
+    out = np.empty(n, np.int64)
+    k = 0
+    for i in range(n):
+        dx = pts[i, 0] - c0
+        dy = pts[i, 1] - c1
+        dz = pts[i, 2] - c2
+        if math.sqrt(dx * dx + dy * dy + dz * dz) <= r:
+            out[k] = i
+            k += 1
+    return out[:k]
