@@ -48,6 +48,7 @@ __all__ = [
     "smallest_vectors",
     "sort_order",
     "space_any",
+    "voxel_means",
 ]
 
 log = logging.getLogger(__name__)
@@ -120,6 +121,7 @@ def _compile() -> dict[str, Any]:
         "space_any": k.space_any,
         "smallest_vectors": k.smallest_vectors,
         "norm_within": k.norm_within,
+        "voxel_means": k.voxel_means,
     }
 
 
@@ -508,3 +510,14 @@ def norm_within(
         np.intp
     )
     return out
+
+
+def voxel_means(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64] | None:
+    """(M, 3) centroids of the (N, 3) finite ``points`` in each occupied cube of edge
+    ``voxel``, cells in lexicographic order, to the bit as
+    :func:`mks_sim.localization.representation.voxel_average` computes them with numpy, in
+    one compiled call (a 640 x 480 scan: 10 -> 3 ms); None when the cells span too much
+    for one int64 key (numpy's rows then). Needs :func:`available`."""
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    out, ok = _load()["voxel_means"](pts, float(voxel))
+    return out if ok else None

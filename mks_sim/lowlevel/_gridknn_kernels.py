@@ -884,3 +884,60 @@ def norm_within(pts, c0, c1, c2, r):
             out[k] = i
             k += 1
     return out[:k]
+
+
+@nb.njit(cache=True)
+def voxel_means(points, voxel):
+    """(M, 3) centroids of the points in each occupied cube of edge ``voxel``, cells in
+    lexicographic order, as ``representation.voxel_average`` computes them with numpy:
+    cells ``floor(p / voxel)``, one mixed-radix key per cell, and each centroid's sums added
+    in the points' order (``np.bincount``'s), divided by the count; (empty, False) when
+    the cells span too much for one int64 key."""
+    n = points.shape[0]
+    cx = np.empty(n, np.int64)
+    cy = np.empty(n, np.int64)
+    cz = np.empty(n, np.int64)
+    for i in range(n):
+        cx[i] = math.floor(points[i, 0] / voxel)
+        cy[i] = math.floor(points[i, 1] / voxel)
+        cz[i] = math.floor(points[i, 2] / voxel)
+    lo0 = cx.min()
+    lo1 = cy.min()
+    lo2 = cz.min()
+    s0 = cx.max() - lo0 + 1
+    s1 = cy.max() - lo1 + 1
+    s2 = cz.max() - lo2 + 1
+    if float(s0) * float(s1) * float(s2) >= 2.0**62:
+        return np.empty((0, 3)), False
+    keys = np.empty(n, np.int64)
+    top = 0
+    for i in range(n):
+        k = ((cx[i] - lo0) * (s1 * s2) + (cy[i] - lo1) * s2) + (cz[i] - lo2)
+        keys[i] = k
+        if k > top:
+            top = k
+    bits = 1
+    while (top >> bits) > 0:
+        bits += 1
+    order = radix_order(keys, bits)
+    inverse = np.empty(n, np.int64)
+    m = 0
+    for r in range(n):
+        j = order[r]
+        if r > 0 and keys[j] != keys[order[r - 1]]:
+            m += 1
+        inverse[j] = m
+    m += 1
+    sums = np.zeros((m, 3))
+    counts = np.zeros(m, np.int64)
+    for i in range(n):
+        c = inverse[i]
+        sums[c, 0] += points[i, 0]
+        sums[c, 1] += points[i, 1]
+        sums[c, 2] += points[i, 2]
+        counts[c] += 1
+    for c in range(m):
+        sums[c, 0] = sums[c, 0] / counts[c]
+        sums[c, 1] = sums[c, 1] / counts[c]
+        sums[c, 2] = sums[c, 2] / counts[c]
+    return sums, True
