@@ -30,6 +30,7 @@ from mks_sim.errors import DataError, MksError
 from mks_sim.geometry.keypoints import unique_cells
 from mks_sim.geometry.points import fibonacci_sphere
 from mks_sim.geometry.transforms import make_transform, rotation_from_covariance
+from mks_sim.lowlevel._gridknn import column_mean
 from mks_sim.lowlevel.grouping import Vertexes
 from mks_sim.lowlevel.regions import Plane
 from mks_sim.models.pose import PoseHypothesis
@@ -243,7 +244,7 @@ def rested_pose(
     if down[k] < np.cos(np.radians(max_tilt_deg)):
         return None
     Q = rotation_between(T[:3, :3] @ normals[k], -up)
-    centre = T[:3, :3] @ pts.mean(axis=0) + T[:3, 3]
+    centre = T[:3, :3] @ column_mean(pts) + T[:3, 3]
     R = Q @ T[:3, :3]
     moved = pts @ R.T
     tr = Q @ (T[:3, 3] - centre) + centre
@@ -274,7 +275,7 @@ def stable_hull_normals(
     _, group = np.unique(keys, axis=0, return_inverse=True)
     group = group.ravel()
     group_area = np.bincount(group, weights=area)
-    centre = pts.mean(axis=0) if centre is None else np.asarray(centre, dtype=np.float64)
+    centre = column_mean(pts) if centre is None else np.asarray(centre, dtype=np.float64)
     out: list[FloatArray] = []
     for g in np.flatnonzero(group_area >= min_area * area.sum()):
         rows = np.flatnonzero(group == g)

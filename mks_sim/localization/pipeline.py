@@ -48,7 +48,7 @@ from mks_sim.localization.representation import (
     voxel_average,
 )
 from mks_sim.localization.verify import Consistency, NearPoints, consistency, find_table, rank
-from mks_sim.lowlevel._gridknn import column_mean, norm_within
+from mks_sim.lowlevel._gridknn import column_mean, norm_within, row_norms
 from mks_sim.lowlevel.grouping import (
     PlanarRegion,
     Plane,
@@ -859,7 +859,7 @@ def _diverse_planes(
 
 def _pca_extent(points: FloatArray) -> float:
     """Diagonal of the bounding box in the points' principal axes (rotation invariant)."""
-    c = points - points.mean(axis=0)
+    c = points - column_mean(points)
     _, _, vt = np.linalg.svd(c[:: max(1, len(c) // 2000)], full_matrices=False)
     return float(np.linalg.norm(np.ptp(c @ vt.T, axis=0)))
 
@@ -1508,7 +1508,7 @@ def _hop(
     pts = np.asarray(model.surface_points(), dtype=np.float64)
     T0 = np.asarray(best.matrix, dtype=np.float64)
     size = float(model.surface.size)
-    centre = T0[:3, :3] @ pts.mean(axis=0) + T0[:3, 3]
+    centre = T0[:3, :3] @ column_mean(pts) + T0[:3, 3]
     starts = []
     for axis in T0[:3, :3].T:
         horizontal = np.array([axis[0], axis[1], 0.0])
@@ -1522,7 +1522,7 @@ def _hop(
                 starts.append(T)
     turns = [rotation_about(np.array([0.0, 0.0, 1.0]), a * np.pi) for a in (0.5, 1.0, 1.5)]
     turns += [rotation_about(axis, np.pi) for axis in T0[:3, :3].T]
-    radius = float(np.max(np.linalg.norm(pts - pts.mean(axis=0), axis=1)))
+    radius = float(np.max(row_norms(pts - column_mean(pts))))
     near = objects[np.linalg.norm(objects - centre, axis=1) <= radius * (1 + max(HOP_SHIFTS))]
     # Turned about the model's centre and about the centre of the points seen near it (a
     # part seen from one side turns about what is seen), then set back down to the best's
@@ -1565,7 +1565,7 @@ def _points_near(T: FloatArray, pts: FloatArray, objects: FloatArray, d: float) 
     """The object points within the model's bounding sphere (about its samples' centroid,
     ``pts`` in the model frame) + 2 ``d`` of pose ``T``: what ICP of that pose fits."""
     centre = column_mean(pts)
-    radius = float(np.max(np.linalg.norm(pts - centre, axis=1)))
+    radius = float(np.max(row_norms(pts - centre)))
     c = T[:3, :3] @ centre + T[:3, 3]
     return objects[norm_within(objects, c, radius + 2 * d)]
 

@@ -62,13 +62,15 @@ def _nearest_distances(points: FloatArray, queries: FloatArray) -> FloatArray:
     tree beyond :data:`_BRUTE_PAIRS` pairs."""
     if len(points) * len(queries) > _BRUTE_PAIRS or points.shape[1] != 3:
         return np.asarray(cKDTree(points, balanced_tree=False).query(queries)[0])
-    d = points[:, None, 0] - queries[None, :, 0]
+    # (Q, P): each query's row reduced along its contiguous axis (the squares do not depend
+    # on the sign of the difference)
+    d = queries[:, None, 0] - points[None, :, 0]
     sq = d * d
-    d = points[:, None, 1] - queries[None, :, 1]
+    d = queries[:, None, 1] - points[None, :, 1]
     sq += d * d
-    d = points[:, None, 2] - queries[None, :, 2]
+    d = queries[:, None, 2] - points[None, :, 2]
     sq += d * d
-    return np.asarray(np.sqrt(sq.min(axis=0)))
+    return np.asarray(np.sqrt(sq.min(axis=1)))
 
 
 def plane_vertexes(
