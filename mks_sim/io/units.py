@@ -26,7 +26,8 @@ def extent(points: ArrayLike) -> float:
     and it only has to tell millimetres from metres)."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     p = p[:: max(1, len(p) // 20000)]
-    p = p[np.all(np.isfinite(p), axis=1)]
+    # (per column and compress: an axis-1 all and a mask's row gather are several times slower)
+    p = np.compress(np.isfinite(p[:, 0]) & np.isfinite(p[:, 1]) & np.isfinite(p[:, 2]), p, axis=0)
     if len(p) < 2:
         return 0.0
     lo, hi = np.percentile(p, [2, 98], axis=0)
