@@ -519,6 +519,13 @@ def test_components_merge_when_one_object_could_span_them() -> None:
     assert out[700] not in (out[0], out[500])  # e: near a, but a + b + e exceeds 1.1 x size
 
 
+def _tied_points(rng: np.random.Generator, most: int, half: int, denom: float) -> np.ndarray:
+    """1 to ``most`` points on a grid of step 1 / ``denom`` within ``half`` steps of 0: many
+    squared distances equal a radius's square exactly."""
+    n = int(rng.integers(1, most))
+    return rng.integers(-half, half + 1, size=(n, 3)) / denom
+
+
 def test_compiled_ball_and_plane_queries_follow_the_trees_rule() -> None:
     """``ball_rows`` and ``plane_pairs`` return the sets the k-d tree returns
     (``query_ball_point``, ``sparse_distance_matrix``, ``query`` with an upper bound), exact
@@ -532,8 +539,7 @@ def test_compiled_ball_and_plane_queries_follow_the_trees_rule() -> None:
     rng = np.random.default_rng(12)
     ties = 0
     for trial in range(40):
-        n = int(rng.integers(1, 400))
-        pts = rng.integers(-12, 13, size=(n, 3)) / 8.0
+        pts = _tied_points(rng, 400, 12, 8.0)
         if trial % 5 == 0:
             pts[:, 1] = 0.25  # (x, y) on a line
         r = float(rng.choice([0.5, 0.625, 1.0, 0.3]))
@@ -575,8 +581,7 @@ def test_near_points_answer_as_the_trees_upper_bound_query() -> None:
     rng = np.random.default_rng(31)
     ties = 0
     for t in range(60):
-        n = int(rng.integers(1, 2500))
-        pts = rng.integers(-40, 41, size=(n, 3)) / 400.0
+        pts = _tied_points(rng, 2500, 40, 400.0)
         if t % 4 == 0:
             pts[:, 2] = 0.75  # a flat set (a table)
         q = np.vstack([rng.integers(-44, 45, size=(400, 3)) / 400.0, [[5.0, 5.0, 5.0]]])

@@ -120,7 +120,6 @@ def _compile() -> dict[str, Any]:
         "order_statistics": k.order_statistics,
         "space_any": k.space_any,
         "smallest_vectors": k.smallest_vectors,
-        "norm_within": k.norm_within,
         "voxel_means": k.voxel_means,
     }
 
@@ -334,7 +333,9 @@ def ball_rows(
     c = np.asarray(centre, dtype=np.float64).reshape(3)
     rr = float(r) * float(r)
     if available():
-        out: NDArray[np.intp] = _load()["ball_rows"](pts, c[0], c[1], c[2], rr).astype(np.intp)
+        out: NDArray[np.intp] = _load()["ball_rows"](pts, c[0], c[1], c[2], rr, False).astype(
+            np.intp
+        )
         return out
     d = pts - c
     return np.flatnonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2] <= rr)
@@ -506,7 +507,7 @@ def norm_within(
     if points.ndim != 2 or points.shape[1] != 3 or not available():
         return np.flatnonzero(row_norms(points - c) <= r)
     pts = np.ascontiguousarray(points, dtype=np.float64)
-    out: NDArray[np.intp] = _load()["norm_within"](pts, c[0], c[1], c[2], float(r)).astype(
+    out: NDArray[np.intp] = _load()["ball_rows"](pts, c[0], c[1], c[2], float(r), True).astype(
         np.intp
     )
     return out

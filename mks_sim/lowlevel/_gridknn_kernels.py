@@ -491,9 +491,12 @@ def column_sums(a):
 
 
 @nb.njit(cache=True)
-def ball_rows(pts, c0, c1, c2, rr):
-    """Ascending indices of the rows of ``pts`` within the ball: ``(dx*dx + dy*dy) + dz*dz
-    <= rr``, the squared distance as the k-d tree adds it (its data point minus the query)."""
+def ball_rows(pts, c0, c1, c2, bound, root):
+    """Ascending indices of the rows of ``pts`` within the ball, ``d = pts - c``:
+    ``(dx*dx + dy*dy) + dz*dz <= bound`` (the squared distance as the k-d tree adds it, its
+    data point minus the query: ``bound`` = r * r), or with ``root``
+    ``sqrt((dx*dx + dy*dy) + dz*dz) <= bound`` (numpy's ``np.linalg.norm(pts - c, axis=1)
+    <= r``, to the bit)."""
     n = pts.shape[0]
     out = np.empty(n, np.int64)
     k = 0
@@ -501,7 +504,8 @@ def ball_rows(pts, c0, c1, c2, rr):
         dx = pts[i, 0] - c0
         dy = pts[i, 1] - c1
         dz = pts[i, 2] - c2
-        if dx * dx + dy * dy + dz * dz <= rr:
+        s = dx * dx + dy * dy + dz * dz
+        if (math.sqrt(s) if root else s) <= bound:
             out[k] = i
             k += 1
     return out[:k]
@@ -513,17 +517,25 @@ def _plane_grid(pts, lo, h, nx, ny):
     order), the points of cell c being ``order[start[c]:start[c + 1]]``, ascending."""
     n = pts.shape[0]
     key = np.empty(n, np.int64)
-    start = np.zeros(nx * ny + 1, np.int64)
     for i in range(n):
         cx = min(max(int(math.floor((pts[i, 0] - lo[0]) / h)), 0), nx - 1)
         cy = min(max(int(math.floor((pts[i, 1] - lo[1]) / h)), 0), ny - 1)
         key[i] = cx * ny + cy
-        start[key[i] + 1] += 1
-    for c in range(nx * ny):
+    return _buckets(key, nx * ny)
+
+
+@nb.njit(cache=True)
+def _buckets(key, ncells):
+    """(start, order) of a stable counting sort of ``key`` (all in [0, ncells)): the
+    indices with key c are ``order[start[c]:start[c + 1]]``, ascending."""
+    start = np.zeros(ncells + 1, np.int64)
+    for k in key:
+        start[k + 1] += 1
+    for c in range(ncells):
         start[c + 1] += start[c]
     fill = start[:-1].copy()
-    order = np.empty(n, np.int64)
-    for i in range(n):
+    order = np.empty(key.shape[0], np.int64)
+    for i in range(key.shape[0]):
         order[fill[key[i]]] = i
         fill[key[i]] += 1
     return start, order
@@ -763,20 +775,12 @@ def space_any(pts, queries, rr, lo, h, nx, ny, nz):
     of them covering ``pts``: a match lies in the 3 x 3 x 3 cells around the query's."""
     n = pts.shape[0]
     key = np.empty(n, np.int64)
-    start = np.zeros(nx * ny * nz + 1, np.int64)
     for i in range(n):
         cx = min(max(int(math.floor((pts[i, 0] - lo[0]) / h)), 0), nx - 1)
         cy = min(max(int(math.floor((pts[i, 1] - lo[1]) / h)), 0), ny - 1)
         cz = min(max(int(math.floor((pts[i, 2] - lo[2]) / h)), 0), nz - 1)
         key[i] = (cx * ny + cy) * nz + cz
-        start[key[i] + 1] += 1
-    for c in range(nx * ny * nz):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    order = np.empty(n, np.int64)
-    for i in range(n):
-        order[fill[key[i]]] = i
-        fill[key[i]] += 1
+    start, order = _buckets(key, nx * ny * nz)
     nq = queries.shape[0]
     out = np.zeros(nq, np.bool_)
     for q in range(nq):
@@ -867,23 +871,6 @@ def smallest_vectors(cov, lam0, q, safe):
         out[i, 1] = c[best, 1] / d
         out[i, 2] = c[best, 2] / d
     return out, bad
-
-
-@nb.njit(cache=True)
-def norm_within(pts, c0, c1, c2, r):
-    """Ascending indices of the rows of ``pts`` with ``sqrt((dx*dx + dy*dy) + dz*dz) <= r``,
-    ``d = pts - c``: numpy's ``np.linalg.norm(pts - c, axis=1) <= r``, to the bit."""
-    n = pts.shape[0]
-    out = np.empty(n, np.int64)
-    k = 0
-    for i in range(n):
-        dx = pts[i, 0] - c0
-        dy = pts[i, 1] - c1
-        dz = pts[i, 2] - c2
-        if math.sqrt(dx * dx + dy * dy + dz * dz) <= r:
-            out[k] = i
-            k += 1
-    return out[:k]
 
 
 @nb.njit(cache=True)
