@@ -533,6 +533,7 @@ def test_vertex_support_distances_equal_the_trees() -> None:
             pts, q = np.round(pts, 3), np.round(q, 3)
         want = cKDTree(pts).query(q)[0]
         assert vertexes._nearest_distances(pts, q).tobytes() == want.tobytes()
+    assert np.all(np.isinf(vertexes._nearest_distances(np.zeros((0, 3)), q)))  # no points
     big = rng.normal(size=(30000, 3))
     q = rng.normal(size=(10, 3))
     np.testing.assert_array_equal(vertexes._nearest_distances(big, q), cKDTree(big).query(q)[0])

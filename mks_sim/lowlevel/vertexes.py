@@ -60,6 +60,8 @@ def _nearest_distances(points: FloatArray, queries: FloatArray) -> FloatArray:
     computes it (``sqrt((dx*dx + dy*dy) + dz*dz)``, the point minus the query): by all
     pairs for a face's few hundred points and a few candidates (no tree to build), by the
     tree beyond :data:`_BRUTE_PAIRS` pairs."""
+    if len(points) == 0:
+        return np.full(len(queries), np.inf)  # (the tree's answer: no neighbour)
     if len(points) * len(queries) > _BRUTE_PAIRS or points.shape[1] != 3:
         return np.asarray(cKDTree(points, balanced_tree=False).query(queries)[0])
     # (Q, P): each query's row reduced along its contiguous axis (the squares do not depend
