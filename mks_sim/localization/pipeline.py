@@ -48,7 +48,7 @@ from mks_sim.localization.representation import (
     voxel_average,
 )
 from mks_sim.localization.verify import Consistency, NearPoints, consistency, find_table, rank
-from mks_sim.lowlevel._gridknn import column_mean, norm_within, row_norms
+from mks_sim.lowlevel._gridknn import column_bounds, column_mean, norm_within, row_norms
 from mks_sim.lowlevel.grouping import (
     PlanarRegion,
     Plane,
@@ -883,9 +883,9 @@ def _merge_components(
 
     members = {c: np.flatnonzero(labels == c) for c in ids}
     own = {c: points[members[c]] for c in ids}
-    # (per column: numpy's axis-0 min and max of (N, 3) are several times slower)
-    lo = {c: np.array([own[c][:, k].min() for k in range(3)]) for c in ids}
-    hi = {c: np.array([own[c][:, k].max() for k in range(3)]) for c in ids}
+    bounds = {c: column_bounds(own[c]) for c in ids}
+    lo = {c: bounds[c][0] for c in ids}
+    hi = {c: bounds[c][1] for c in ids}
     trees: dict[int, cKDTree] = {}  # distances only, built when a pair's boxes come near
     reach = 0.25 * model_size
     for a, b in itertools.combinations(ids, 2):

@@ -137,7 +137,8 @@ def spacing_and_noise(
     sel = None if n <= probes else rng.choice(n, probes, replace=False)
     probe = points if sel is None else points[sel]
     k = min(12, n)
-    if tree is None and _grid_answers(points):
+    compiled = _grid_answers(points)
+    if tree is None and compiled:
         from mks_sim.lowlevel import _gridknn
 
         rows = np.arange(n) if sel is None else sel
@@ -150,7 +151,7 @@ def spacing_and_noise(
     spacing = float(np.median(d[:, 1])) if k > 1 else 0.0
     # the covariances' upper triangles, and their smallest eigenvalues in closed form
     # (numpy's batched einsum and eigvalsh: 2.7 ms per 800 probes)
-    if _grid_answers(points):
+    if compiled:
         from mks_sim.lowlevel import _gridknn
 
         scatter = _gridknn.neighbour_scatter(points, idx)  # (the same sums, compiled)

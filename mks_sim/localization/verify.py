@@ -101,9 +101,7 @@ def find_table(
     w = np.cross(n, u)
     uv_in = np.compress(inl, points, axis=0) @ np.column_stack([u, w])
     uv_off = np.compress(off, points, axis=0) @ np.column_stack([u, w])
-    # (per column: numpy's axis-0 min and max of an (N, 2) array are many times slower)
-    lo = np.array([uv_in[:, 0].min(), uv_in[:, 1].min()])
-    hi = np.array([uv_in[:, 0].max(), uv_in[:, 1].max()])
+    lo, hi = _gridknn.column_bounds(uv_in)
     margin = 0.05 * (hi - lo) + 2 * spacing
     inside = np.all((uv_off > lo + margin) & (uv_off < hi - margin), axis=1)
     if inside.mean() < 0.9:

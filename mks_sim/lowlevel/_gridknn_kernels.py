@@ -52,17 +52,24 @@ def cell_keys(pts, lo, h, dims):
 @nb.njit(cache=True)
 def counting_order(keys, ncells):
     """Stable order sorting ``keys`` (all in [0, ncells)): a counting sort, O(N + ncells)."""
-    count = np.zeros(ncells + 1, np.int64)
-    for k in keys:
-        count[k + 1] += 1
+    return buckets(keys, ncells)[1]
+
+
+@nb.njit(cache=True)
+def buckets(key, ncells):
+    """(start, order) of a stable counting sort of ``key`` (all in [0, ncells)): the
+    indices with key c are ``order[start[c]:start[c + 1]]``, ascending."""
+    start = np.zeros(ncells + 1, np.int64)
+    for k in key:
+        start[k + 1] += 1
     for c in range(ncells):
-        count[c + 1] += count[c]
-    order = np.empty(keys.shape[0], np.int64)
-    for i in range(keys.shape[0]):
-        k = keys[i]
-        order[count[k]] = i
-        count[k] += 1
-    return order
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(key.shape[0], np.int64)
+    for i in range(key.shape[0]):
+        order[fill[key[i]]] = i
+        fill[key[i]] += 1
+    return start, order
 
 
 @nb.njit(cache=True, parallel=True)
@@ -521,24 +528,7 @@ def _plane_grid(pts, lo, h, nx, ny):
         cx = min(max(int(math.floor((pts[i, 0] - lo[0]) / h)), 0), nx - 1)
         cy = min(max(int(math.floor((pts[i, 1] - lo[1]) / h)), 0), ny - 1)
         key[i] = cx * ny + cy
-    return _buckets(key, nx * ny)
-
-
-@nb.njit(cache=True)
-def _buckets(key, ncells):
-    """(start, order) of a stable counting sort of ``key`` (all in [0, ncells)): the
-    indices with key c are ``order[start[c]:start[c + 1]]``, ascending."""
-    start = np.zeros(ncells + 1, np.int64)
-    for k in key:
-        start[k + 1] += 1
-    for c in range(ncells):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    order = np.empty(key.shape[0], np.int64)
-    for i in range(key.shape[0]):
-        order[fill[key[i]]] = i
-        fill[key[i]] += 1
-    return start, order
+    return buckets(key, nx * ny)
 
 
 @nb.njit(cache=True)
@@ -780,7 +770,7 @@ def space_any(pts, queries, rr, lo, h, nx, ny, nz):
         cy = min(max(int(math.floor((pts[i, 1] - lo[1]) / h)), 0), ny - 1)
         cz = min(max(int(math.floor((pts[i, 2] - lo[2]) / h)), 0), nz - 1)
         key[i] = (cx * ny + cy) * nz + cz
-    start, order = _buckets(key, nx * ny * nz)
+    start, order = buckets(key, nx * ny * nz)
     nq = queries.shape[0]
     out = np.zeros(nq, np.bool_)
     for q in range(nq):
