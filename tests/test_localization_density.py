@@ -56,3 +56,35 @@ def test_cube_found_with_the_same_score_and_accuracy_at_any_density(
     assert loc.best.score > 0.9, loc.best.score
     pos, rot = pose_error(loc.best.matrix, T, cube_rotations())
     assert pos < 0.5e-3 and rot < 0.5, (pos, rot)
+
+
+@pytest.mark.parametrize("budget", [30000, 10000])
+def test_dense_scan_found_at_a_small_point_budget(cube_model: PolyhedralModel, budget: int) -> None:
+    # The table of this scan is the plane z = 0. On voxel cells that started at the origin its
+    # noisy points averaged to two layers a fraction of a millimetre apart, the spacing
+    # estimate halved and, at a 10,000-point budget, the SPG cut the cube into fragments
+    # (not found); cells centred on the origin keep the table one layer.
+    T, eye, pts = _scan(640, 480)
+    loc = localize_cloud(cube_model, pts, viewpoint=eye, max_points=budget)
+    assert loc.voxel > 0
+    assert loc.spacing > 0.5 * loc.voxel, (loc.spacing, loc.voxel)
+    assert loc.found and loc.best is not None
+    pos, rot = pose_error(loc.best.matrix, T, cube_rotations())
+    assert pos < 2e-3 and rot < 1.0, (pos, rot)
+
+
+def test_a_plane_through_the_origin_averages_to_one_layer() -> None:
+    """``voxel_average(shift=0.5)``: cells centred on the origin keep a noisy plane at z = 0
+    in one layer (one centroid per column); cells starting at the origin split it in two."""
+    from mks_sim.localization.representation import voxel_average
+
+    rng = np.random.default_rng(3)
+    v = 0.002
+    xy = rng.uniform(0.0, 0.1, size=(40000, 2))
+    pts = np.column_stack([xy, rng.normal(0.0, 0.05 * v, len(xy))])
+    columns = len(np.unique(np.floor(xy / v + 0.5), axis=0))
+    centred = voxel_average(pts, v, shift=0.5)
+    assert len(centred) == columns
+    assert np.all(np.abs(centred[:, 2]) < 0.5 * v)
+    split = voxel_average(pts, v)
+    assert len(split) > 1.8 * len(np.unique(np.floor(xy / v), axis=0))

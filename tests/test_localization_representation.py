@@ -402,9 +402,10 @@ def test_voxel_average_compiled_equals_numpys_to_the_bit(monkeypatch: pytest.Mon
         pts = rng.normal(size=(int(rng.integers(1, 30000)), 3)) * rng.uniform(0.01, 1.0)
         if t % 2:
             pts = np.round(pts, 3)  # many points on cell borders
-        cases.append((pts + rng.normal(size=3), float(rng.uniform(0.0005, 0.05))))
-    got = [voxel_average(p, v) for p, v in cases]
+        shift = (0.0, 0.5, 0.25)[t % 3]  # cells starting at, centred on, between
+        cases.append((pts + rng.normal(size=3), float(rng.uniform(0.0005, 0.05)), shift))
+    got = [voxel_average(p, v, shift=s) for p, v, s in cases]
     monkeypatch.setattr(_gridknn, "available", lambda: False)
-    for (p, v), g in zip(cases, got, strict=True):
-        want = voxel_average(p, v)
+    for (p, v, s), g in zip(cases, got, strict=True):
+        want = voxel_average(p, v, shift=s)
         assert g.shape == want.shape and g.tobytes() == want.tobytes()

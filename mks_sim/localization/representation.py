@@ -91,17 +91,20 @@ def _tree(points: FloatArray) -> cKDTree:
     return cKDTree(points, balanced_tree=False, compact_nodes=False, leafsize=32)
 
 
-def voxel_average(points: FloatArray, voxel: float) -> FloatArray:
+def voxel_average(points: FloatArray, voxel: float, shift: float = 0.0) -> FloatArray:
     """(M, 3) centroids of the points in each occupied cube of edge ``voxel`` (the one voxel
-    filter of the package)."""
+    filter of the package): cells ``floor(p / voxel + shift)``, so ``shift=0.5`` centres
+    them on the frame's origin (a plane through it then lies inside one layer of cells,
+    not on the border of two)."""
     if len(points) and points.ndim == 2 and points.shape[1] == 3:
         from mks_sim.lowlevel import _gridknn
 
         if _gridknn.available():  # the same centroids, in one compiled pass
-            means = _gridknn.voxel_means(points, voxel)
+            means = _gridknn.voxel_means(points, voxel, shift)
             if means is not None:
                 return means
-    _, inverse, counts = unique_cells(np.floor(points / voxel).astype(np.int64), first=False)
+    cells = np.floor(points / voxel + shift) if shift else np.floor(points / voxel)
+    _, inverse, counts = unique_cells(cells.astype(np.int64), first=False)
     out = np.zeros((len(counts), 3))
     for d in range(3):
         out[:, d] = np.bincount(inverse, weights=points[:, d]) / counts

@@ -519,12 +519,14 @@ def norm_within(
     return out
 
 
-def voxel_means(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64] | None:
+def voxel_means(
+    points: NDArray[np.float64], voxel: float, shift: float = 0.0
+) -> NDArray[np.float64] | None:
     """(M, 3) centroids of the (N, 3) finite ``points`` in each occupied cube of edge
-    ``voxel``, cells in lexicographic order, to the bit as
+    ``voxel`` (cells ``floor(p / voxel + shift)``), cells in lexicographic order, to the bit as
     :func:`mks_sim.localization.representation.voxel_average` computes them with numpy, in
     one compiled call (a 640 x 480 scan: 10.4 -> 5.7 ms); None when the cells span too much
     for one int64 key (numpy's rows then). Needs :func:`available`."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
-    out, ok = _load()["voxel_means"](pts, float(voxel))
+    out, ok = _load()["voxel_means"](pts, float(voxel), float(shift))
     return out if ok else None

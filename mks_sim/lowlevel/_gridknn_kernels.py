@@ -864,10 +864,10 @@ def smallest_vectors(cov, lam0, q, safe):
 
 
 @nb.njit(cache=True)
-def voxel_means(points, voxel):
+def voxel_means(points, voxel, shift):
     """(M, 3) centroids of the points in each occupied cube of edge ``voxel``, cells in
     lexicographic order, as ``representation.voxel_average`` computes them with numpy:
-    cells ``floor(p / voxel)``, one mixed-radix key per cell, and each centroid's sums added
+    cells ``floor(p / voxel + shift)``, one mixed-radix key per cell, and each centroid's sums added
     in the points' order (``np.bincount``'s), divided by the count; (empty, False) when
     the cells span too much for one int64 key."""
     n = points.shape[0]
@@ -875,9 +875,9 @@ def voxel_means(points, voxel):
     cy = np.empty(n, np.int64)
     cz = np.empty(n, np.int64)
     for i in range(n):
-        cx[i] = math.floor(points[i, 0] / voxel)
-        cy[i] = math.floor(points[i, 1] / voxel)
-        cz[i] = math.floor(points[i, 2] / voxel)
+        cx[i] = math.floor(points[i, 0] / voxel + shift)
+        cy[i] = math.floor(points[i, 1] / voxel + shift)
+        cz[i] = math.floor(points[i, 2] / voxel + shift)
     lo0 = cx.min()
     lo1 = cy.min()
     lo2 = cz.min()
