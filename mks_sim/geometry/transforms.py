@@ -25,6 +25,7 @@ __all__ = [
     "pose_error",
     "random_rotation",
     "rigid_fit",
+    "rigid_fit_unchecked",
     "rotation_angle_deg",
     "rotation_from_covariance",
     "to_row_convention",
@@ -166,6 +167,19 @@ def rigid_fit(
                 f"got shape {w.shape}"
             )
         w = w / w.sum()
+    return _kabsch(P, Q, w)
+
+
+def rigid_fit_unchecked(src: FloatArray, dst: FloatArray) -> tuple[FloatArray, float]:
+    """:func:`rigid_fit` without weights for (N, 3) finite float64 arrays, N >= 1, that the
+    caller has validated: the same arithmetic (and so the same bits) without the checks,
+    for a matcher's inner loop (the rotation-invariant Hough fits one per maximum)."""
+    n = src.shape[0]
+    return _kabsch(src, dst, np.full(n, 1.0 / n))
+
+
+def _kabsch(P: FloatArray, Q: FloatArray, w: FloatArray) -> tuple[FloatArray, float]:
+    """The weighted Kabsch fit of validated points, ``w`` summing to one."""
     mu_p = w @ P
     mu_q = w @ Q
     Pc = P - mu_p
@@ -175,7 +189,10 @@ def rigid_fit(
     t = mu_q - R @ mu_p
     resid = Q - (P @ R.T + t)
     rmse = float(np.sqrt(w @ np.sum(resid**2, axis=1)))
-    return make_transform(R, t), rmse
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T, rmse
 
 
 def rotation_angle_deg(R_a: ArrayLike, R_b: ArrayLike) -> float:

@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from mks_sim.errors import DataError, SpecError
 from mks_sim.geometry.points import as_points
-from mks_sim.geometry.transforms import apply, rigid_fit
+from mks_sim.geometry.transforms import rigid_fit_unchecked
 from mks_sim.models.pose import PoseHypothesis
 
 __all__ = [
@@ -183,6 +183,28 @@ def trilaterate(
     base = a + x[:, None] * ex + y[:, None] * ey
     pts = np.stack([base + z[:, None] * ez, base - z[:, None] * ez], axis=1)
     return pts, ok
+
+
+@dataclass(frozen=True, eq=False)
+class _Fit:
+    """A maximum's rigid fit: (4, 4) model -> detected, its rmse, its (n, 2) int64 pairs
+    (detected index, model index) in detected order."""
+
+    matrix: FloatArray
+    rmse: float
+    correspondences: NDArray[np.int64]
+
+    def hypothesis(self, reference: FloatArray) -> PoseHypothesis:
+        """The fit as a hypothesis: the model's ``reference`` moved (apply's arithmetic) is
+        its reference point, its pairs are its votes."""
+        T = self.matrix
+        return PoseHypothesis(
+            matrix=T,
+            reference_point=(reference[None, :] @ T[:3, :3].T + T[:3, 3])[0],
+            votes=len(self.correspondences),
+            correspondences=self.correspondences,
+            rmse=self.rmse,
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -368,7 +390,8 @@ class RotationInvariantHough:
             min_votes = max(min(4, len(uniq)), (top_raw + 1) // 2)
         # Noise spreads one maximum over several clusters; clusters that pair the same
         # detected points with the same model points are one maximum.
-        merged: dict[tuple[bool, bytes], tuple[Maximum, PoseHypothesis | None]] = {}
+        # (a maximum's hypothesis is built only when it is kept: the first of its key, proper)
+        merged: dict[tuple[bool, bytes], tuple[Maximum, _Fit | None]] = {}
         for k in np.argsort(-pos_votes, kind="stable"):
             pos, hits, _ = maxima_raw[k]
             v = int(pos_votes[k])
@@ -389,7 +412,7 @@ class RotationInvariantHough:
         for m, h in merged.values():
             maxima.append(m)
             if m.proper and h is not None:
-                hyps.append(h)
+                hyps.append(h.hypothesis(self.reference))
         maxima.sort(key=lambda m: (-m.votes, not m.proper, m.rmse))
         hyps.sort(key=lambda h: (-h.votes, h.rmse))
         top = maxima[0].votes if maxima else 0
@@ -480,9 +503,7 @@ class RotationInvariantHough:
         pos = sums / n_top[:, None]
         return [(pos[k], int(hits[k]), int(best[k])) for k in range(n_lab)]
 
-    def _match(
-        self, pos: FloatArray, D: FloatArray, first: NDArray[np.int64]
-    ) -> PoseHypothesis | None:
+    def _match(self, pos: FloatArray, D: FloatArray, first: NDArray[np.int64]) -> _Fit | None:
         """Pair detected points with model points of equal radius; fit the rigid motion."""
         dist = np.linalg.norm(D - pos, axis=1)
         cost = np.abs(dist[:, None] - self.radii[None, :])  # (m, n)
@@ -495,7 +516,7 @@ class RotationInvariantHough:
             return None
         T, rmse = self._fit(det_idx, mod_idx, D, pos)
         # Radii closer than the tolerance can be confused: re-pair by position once.
-        moved = apply(T, self.points)
+        moved = self.points @ T[:3, :3].T + T[:3, 3]  # (apply's arithmetic, unchecked)
         cost2 = np.linalg.norm(D[:, None] - moved[None], axis=2)
         r2, c2 = linear_sum_assignment(np.where(cost2 <= 2.0 * self.tolerance, cost2, 1e6))
         ok2 = cost2[r2, c2] <= 2.0 * self.tolerance
@@ -506,14 +527,7 @@ class RotationInvariantHough:
                 T, rmse, det_idx, mod_idx = T2, rmse2, r2[ok2], c2[ok2]
         order = np.argsort(det_idx)
         corr = np.column_stack([first[det_idx[order]], mod_idx[order]])
-        ref_det = apply(T, self.reference)
-        return PoseHypothesis(
-            matrix=T,
-            reference_point=ref_det,
-            votes=len(det_idx),
-            correspondences=corr,
-            rmse=rmse,
-        )
+        return _Fit(T, rmse, corr)
 
     def _fit(
         self, det_idx: NDArray[np.intp], mod_idx: NDArray[np.intp], D: FloatArray, pos: FloatArray
@@ -521,4 +535,4 @@ class RotationInvariantHough:
         # The reference point is one more pair (P0 -> P0'), as in the paper's matching step.
         src = np.vstack([self.points[mod_idx], self.reference])
         dst = np.vstack([D[det_idx], pos])
-        return rigid_fit(src, dst)
+        return rigid_fit_unchecked(src, dst)  # (finite model and detected points)
