@@ -129,6 +129,69 @@ def test_industrial_part_one_sided_and_control_points_recoverable() -> None:
     assert recovered.max() < 0.001
 
 
+def _part_view() -> tuple[PolyhedralModel, np.ndarray, np.ndarray, np.ndarray]:
+    """The industrial part seen obliquely (several vertexes in view)."""
+    part = industrial_part_mesh()
+    T = make_transform(_rot_z(0.7), [0.01, -0.02, 0.0])
+    eye = apply(T, np.array([[0.3, -0.25, 0.4]]))[0]
+    pts = synthetic_scan(
+        part, T, eye, apply(T, np.array([[0.0, 0.0, 0.01]]))[0], width=240, height=180,
+        fov_deg=25, noise_sigma=0.0002, rng=np.random.default_rng(301), extra=[TABLE],
+    )  # fmt: skip
+    return PolyhedralModel.from_mesh(part, "part"), T, eye, pts
+
+
+@pytest.mark.parametrize("thorough", [False, True])
+def test_industrial_part_found_with_either_verification(thorough: bool) -> None:
+    model, T, eye, pts = _part_view()
+    loc = localize_cloud(model, pts, viewpoint=eye, thorough=thorough)
+    assert loc.found and loc.best is not None
+    pos, rot = pose_error(loc.best.matrix, T)
+    assert rot < 1.0 and pos < 0.001, (rot, pos)
+
+
+def test_rotation_invariant_hough_is_the_fallback(monkeypatch: pytest.MonkeyPatch) -> None:
+    """By default the rotation-invariant Hough runs only when the corner hypotheses score
+    under ``min_score`` (``thorough``: on every segment with three or more vertexes), and
+    the fallback's hypotheses are verified and can win."""
+    import mks_sim.localization.hypotheses as hyp_mod
+    import mks_sim.localization.pipeline as pipe
+
+    model, T, eye, pts = _part_view()
+    calls: list[str] = []
+    real_rotinv = hyp_mod._rotinv_hypotheses
+
+    def counted(*args, **kwargs):
+        calls.append("rotinv")
+        return real_rotinv(*args, **kwargs)
+
+    monkeypatch.setattr(hyp_mod, "_rotinv_hypotheses", counted)
+    loc = localize_cloud(model, pts, viewpoint=eye)
+    assert loc.found and calls == []
+    localize_cloud(model, pts, viewpoint=eye, thorough=True)
+    assert calls == ["rotinv"]
+
+    # The corner hypotheses (and the plane pairs) taken away: the first verification finds
+    # nothing, the fallback is asked, and what it gives (here the corner hypotheses, moved
+    # there by the test) is verified and found.
+    calls.clear()
+    real = pipe.vertex_hypotheses
+
+    def moved_to_the_fallback(*args, **kwargs):
+        if kwargs.get("corners") is False:
+            calls.append("fallback")
+            return real(*args, **{**kwargs, "corners": True, "rotinv": False})
+        return []
+
+    monkeypatch.setattr(pipe, "vertex_hypotheses", moved_to_the_fallback)
+    monkeypatch.setattr(pipe, "_plane_pairs", lambda *a, **k: [])
+    loc = localize_cloud(model, pts, viewpoint=eye)
+    assert calls == ["fallback"]
+    assert loc.found and loc.best is not None
+    pos, rot = pose_error(loc.best.matrix, T)
+    assert rot < 1.0 and pos < 0.001, (rot, pos)
+
+
 @dataclass(frozen=True)
 class _OracleModel:
     """A protocol model whose hypotheses are perturbed truths (tests the ICP path)."""

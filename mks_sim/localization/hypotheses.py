@@ -477,6 +477,7 @@ def vertex_hypotheses(
     max_angle_deg: float = 20.0,
     keep: int = 100,
     rotinv: bool = True,
+    corners: bool = True,
 ) -> list[PoseHypothesis]:
     """Pose hypotheses from matching detected vertexes (with face normals) to model corners.
 
@@ -489,6 +490,8 @@ def vertex_hypotheses(
     Args:
         rotinv: add the rotation-invariant Hough's maxima (the workstation runs that matcher
             on its model's logical sensor instead).
+        corners: the hypotheses of each vertex's face normals matched to the model's
+            corners (False with ``rotinv``: the rotation-invariant Hough's alone).
 
     Returns:
         At most ``keep`` hypotheses, most voted first (ties: better quick inlier fraction).
@@ -501,7 +504,7 @@ def vertex_hypotheses(
     c_point, c_normals = model.corner_triples  # (K, 3), (K, 3, 3): every ordered triple
     c_gram = np.einsum("kij,klj->kil", c_normals, c_normals)  # (K, 3, 3)
     cos_max = np.cos(np.radians(max_angle_deg))
-    for di in range(len(detected)):
+    for di in range(len(detected) if corners else 0):
         Nd = detected.normals[di]
         sel = np.flatnonzero(np.abs(c_gram - Nd @ Nd.T).max(axis=(1, 2)) <= 0.35)
         if sel.size == 0:

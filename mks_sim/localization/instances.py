@@ -318,9 +318,11 @@ def localize_all(
             passes -= 1
             break
         t = time.perf_counter()
+        # (thorough: the verification bin picking was measured with, issue 13)
         loc = localize_cloud(
-            model, cloud[free], table=table if table is not None else "auto", voxel=None, rng=rng
-        )
+            model, cloud[free], table=table if table is not None else "auto", voxel=None,
+            thorough=True, rng=rng,
+        )  # fmt: skip
         timing["passes"] += time.perf_counter() - t
         t = time.perf_counter()
         accepted = 0
@@ -446,7 +448,7 @@ def localize_all(
                     continue
                 sub = localize_cloud(
                     model, cloud[part], table=use_table if use_table is not None else "none",
-                    voxel=None, rng=rng,
+                    voxel=None, thorough=True, rng=rng,
                 )  # fmt: skip
                 if accept(list(sub.hypotheses)):
                     accepted += 1

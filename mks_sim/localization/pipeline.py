@@ -102,6 +102,17 @@ COARSE_POINTS = 300
 #: cube, tuning seeds 1000-1009: the full ICPs' time 12.5 -> 7.0 ms per localization;
 #: tuning seeds 1000-1029, every object and mode: success and median errors unchanged.
 ICP_STALL = 4
+#: How a polyhedral model's candidates are verified (the workstation's and, unless
+#: ``thorough``, ``localize_cloud``'s): the starts pre-scored in one batch, the best 4 get 6
+#: coarse ICP iterations on :data:`COARSE_POINTS` points, the best 2 the full ICP on
+#: :data:`ICP_POINTS`.
+POLYHEDRAL_VERIFY: dict[str, Any] = {
+    "prescreen": 4,
+    "full_refine": 2,
+    "max_scene_points": ICP_POINTS,
+    "coarse_points": COARSE_POINTS,
+    "icp_stall": ICP_STALL,
+}
 #: A polyhedral pose that leaves more off-table points in its bounding sphere unexplained
 #: than this fraction of the points it explains covers only part of an object (a cube pose
 #: around the lower part of a taller box): not accepted (not found rather than a wrong pose).
@@ -276,13 +287,7 @@ def polyhedral_candidates(
             cover_distance=max(inlier, 1.5 * spacing, rep.voxel),
             min_score=min_score,
             max_icp=max_icp,
-            verify_options={
-                "prescreen": prescreen,
-                "full_refine": 2,
-                "max_scene_points": ICP_POINTS,
-                "coarse_points": COARSE_POINTS,
-                "icp_stall": ICP_STALL,
-            },
+            verify_options={**POLYHEDRAL_VERIFY, "prescreen": prescreen},
             rng=rng,
             surface=surface,
             symmetries=syms,
@@ -390,10 +395,12 @@ def _segment_verified(
     rng: np.random.Generator,
     surface: ModelSurface,
     symmetries: Any,
+    more: Callable[[], list[PoseHypothesis]] | None = None,
 ) -> tuple[list[tuple[PoseHypothesis, Any]], float, float]:
     """One segment's verification: the hypotheses refined and scored; when the best scores
-    under ``min_score`` and ``model`` is polyhedral (not None), plane-pair hypotheses
-    (``plane_pairs()``: too few vertexes visible) refined too; when ``model`` is None
+    under ``min_score``, ``more()`` hypotheses (when given) refined too, and then, when the
+    best still scores under it and ``model`` is polyhedral (not None), plane-pair hypotheses
+    (``plane_pairs()``: too few vertexes visible); when ``model`` is None
     (free-form), ICP also from the best's half turns about the model's principal axes
     (:func:`~mks_sim.models.refine.principal_half_turns`), merged; every score multiplied by
     the coverage of the model's surface (its fixed sampling within ``cover_distance`` of a
@@ -420,6 +427,25 @@ def _segment_verified(
     t_ver = time.perf_counter() - t
     t_hyp = 0.0
     best = verified[0].hypothesis.score if verified else 0.0
+    if more is not None and best < min_score:
+        t = time.perf_counter()
+        extra = more()
+        t_hyp += time.perf_counter() - t
+        if extra:
+            t = time.perf_counter()
+            verified += verify_hypotheses(
+                extra,
+                surface,
+                seg_pts,
+                inlier_distance=inlier,
+                symmetries=syms,
+                max_icp=max_icp,
+                rng=rng,
+                **verify_options,
+            )
+            verified.sort(key=lambda v: (-v.hypothesis.score, v.hypothesis.rmse))
+            best = verified[0].hypothesis.score if verified else 0.0
+            t_ver += time.perf_counter() - t
     if model is not None and best < min_score:
         t = time.perf_counter()
         pairs = plane_pairs()
@@ -617,6 +643,7 @@ def localize_cloud(
     min_score: float = 0.5,
     max_hypotheses: int = 10,
     max_icp: int = 8,
+    thorough: bool = False,
     rng: np.random.Generator | None = None,
 ) -> Localization:
     """Localize a model in a point cloud (paper section 4: SPG -> grouping -> Hough -> pose).
@@ -643,6 +670,13 @@ def localize_cloud(
         min_score: ``found`` needs the best score at least this.
         max_hypotheses: report at most this many distinct hypotheses.
         max_icp: ICP-refine at most this many distinct candidates per segment.
+        thorough: a polyhedral model's candidates verified as before the workstation's
+            settings were shared (every start's coarse ICP, three fully refined on 1500
+            points) and the rotation-invariant Hough run on every segment with three or more
+            vertexes; by default they are verified as the workstation verifies them
+            (:data:`POLYHEDRAL_VERIFY`) and the rotation-invariant Hough is a fallback, run
+            when the vertexes' own hypotheses score under ``min_score`` (its cost grows with
+            the cube of the vertexes: 10-35 ms for the industrial part seen with 9-13).
         rng: generator (RANSAC, subsampling); default seeded 0.
 
     Returns:
@@ -754,12 +788,21 @@ def localize_cloud(
         noise = float(np.median([p.plane.rmse for p in rep.planes])) if rep.planes else 0.0
         inlier = max(1.0 * spacing, voxel_size, 3.0 * noise)
         t = time.perf_counter()
-        if isinstance(loc_model, PolyhedralModel):
-            hyps = vertex_hypotheses(loc_model, rep.vertexes, seg_pts, vote_distance=4 * spacing)
+        polyhedral = isinstance(loc_model, PolyhedralModel)
+        more = None
+        if polyhedral:
+            vote = 4 * spacing
+            hyps = vertex_hypotheses(
+                loc_model, rep.vertexes, seg_pts, vote_distance=vote, rotinv=thorough
+            )
+            if not thorough and len(rep.vertexes) >= 3:  # the rotation-invariant Hough's
+                more = functools.partial(
+                    vertex_hypotheses, loc_model, rep.vertexes, seg_pts,
+                    vote_distance=vote, corners=False,
+                )  # fmt: skip
         else:
             hyps = loc_model.hypotheses(seg_pts, None if seg is None else seg.normals)
         t_match += time.perf_counter() - t
-        polyhedral = isinstance(loc_model, PolyhedralModel)
         pairs_of = functools.partial(_plane_pairs, rep, seg_pts, table_plane)
         scored, dt_h, dt_v = _segment_verified(
             loc_model if polyhedral else None,
@@ -770,10 +813,11 @@ def localize_cloud(
             cover_distance=max(inlier, 1.5 * spacing, voxel_size),
             min_score=min_score,
             max_icp=max_icp,
-            verify_options={},
+            verify_options=POLYHEDRAL_VERIFY if polyhedral and not thorough else {},
             rng=rng,
             surface=surface,
             symmetries=syms,
+            more=more,
         )
         t_match += dt_h
         t_refine += dt_v
