@@ -257,7 +257,7 @@ def test_check_scale_flags_unit_mixups(caplog) -> None:
 
 
 def test_extent_of_a_dense_cloud_matches_its_full_percentile_box() -> None:
-    """``extent`` reads every k-th point of a cloud over 20,000 points: on a 300k-point scan-like
+    """``extent`` reads 4,000 points drawn from a larger cloud: on a 300k-point scan-like
     cloud (rows of a sheet with a box on it, NaN holes) it is within 1 % of the diagonal of
     the full cloud's 2nd-98th percentile box."""
     from mks_sim.io.units import extent

@@ -22,10 +22,12 @@ _FACTORS = (1e-3, 1e-2, 2.54e-2, 1.0, 25.4, 1e2, 1e3)  # mm, cm, inch <-> m
 
 def extent(points: ArrayLike) -> float:
     """Robust size of a point set: the diagonal of its 2nd-98th percentile box (NaN-safe;
-    over every k-th point of a cloud of more than 20,000: a 640 x 480 scan's box took 7 ms,
-    and it only has to tell millimetres from metres)."""
+    over 4,000 points drawn with a fixed seed from a larger cloud: a 640 x 480 scan's box
+    took 7 ms over all its points, and it only has to tell millimetres from metres; a
+    stride would alias with the rows of an organised scan)."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    p = p[:: max(1, len(p) // 20000)]
+    if len(p) > 4000:
+        p = p[np.random.default_rng(0).integers(0, len(p), 4000)]
     # (per column and compress: an axis-1 all and a mask's row gather are several times slower)
     p = np.compress(np.isfinite(p[:, 0]) & np.isfinite(p[:, 1]) & np.isfinite(p[:, 2]), p, axis=0)
     if len(p) < 2:

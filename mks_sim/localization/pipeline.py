@@ -885,7 +885,9 @@ def _polish_full_resolution(
     if len(near) > max_points:
         near = near[rng.choice(len(near), max_points, replace=False)]
     try:
-        icp = icp_point_to_plane(surface, near, T, max_distance=2.0 * voxel, max_iterations=15)
+        icp = icp_point_to_plane(
+            surface, near, T, max_distance=2.0 * voxel, max_iterations=15, stall=ICP_STALL
+        )
     except MksError:
         return h
     moved = float(np.linalg.norm(icp.matrix[:3, 3] - T[:3, 3]))
