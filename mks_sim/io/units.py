@@ -18,6 +18,8 @@ __all__ = ["check_scale", "extent", "require_spread"]
 log = logging.getLogger(__name__)
 
 _FACTORS = (1e-3, 1e-2, 2.54e-2, 1.0, 25.4, 1e2, 1e3)  # mm, cm, inch <-> m
+#: the same, commonest mix-up first (mm <-> m, cm <-> m, inch <-> mm, inch <-> m)
+_LIKELY = (1e-3, 1e3, 1e-2, 1e2, 25.4, 2.54e-2)
 
 
 def extent(points: ArrayLike) -> float:
@@ -89,7 +91,14 @@ def check_scale(
         return None
     if m <= s * ratio and m * ratio**2 >= s:
         return None
-    best = min(_FACTORS, key=lambda f: abs(np.log(m * f / (0.5 * s))))
+    # The commonest mix-up that brings the model into the accepted band [s / ratio**2,
+    # s * ratio]: the nearest factor to a fixed target size was a coin toss between 0.001
+    # and 0.01 for a 50 mm cube in mm on a 0.55 m scan in m.
+    lo, hi = s / ratio**2, s * ratio
+    fits = [f for f in _LIKELY if lo <= m * f <= hi]
+    best = (
+        fits[0] if fits else min(_FACTORS, key=lambda f: abs(np.log(m * f / (s / np.sqrt(ratio)))))
+    )
     msg = (
         f"model size {m:.4g} (after scale {scale:g}) vs scene size {s:.4g}: they differ by "
         f"{max(m / s, s / m):.0f}x - are the units the same? try --scale {scale * best:g}"
