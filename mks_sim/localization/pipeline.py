@@ -767,20 +767,27 @@ def localize_cloud(
     segments: list[SegmentReport] = []
     seg_data: list[tuple[FloatArray, Segmentation | None]] = []
     if len(obj) >= min_segment_points:
-        graph = build_graph(obj, m=m, threshold=4.0 * spacing)
+        # One SPG of the object points: its edges up to 4 spacings give the components, and
+        # it is the SPG of each segment none of whose points has a neighbour outside it.
+        adj = build_graph(obj, m=m).adjacency
         from scipy.sparse import csgraph
 
-        _, comp = csgraph.connected_components(graph.adjacency, directed=True, connection="weak")
+        _, comp = csgraph.connected_components(
+            _edges_within(adj, 4.0 * spacing), directed=True, connection="weak"
+        )
         comp = _merge_components(obj, comp, surface.size)
+        open_comps = _open_components(adj, comp)
         sizes = np.bincount(comp)
         for c in np.argsort(-sizes):
             if sizes[c] < min_segment_points:
                 break
             members = np.flatnonzero(comp == c)
             seg_pts = obj[members]
+            seg_graph = None if c in open_comps else _induced(adj, members)
             report, seg = _group_segment(
-                seg_pts, m, spacing, vp, table_plane, normal_rings=2 if noise > 0.2 * spacing else 1
-            )
+                seg_pts, m, spacing, vp, table_plane,
+                normal_rings=2 if noise > 0.2 * spacing else 1, graph=seg_graph,
+            )  # fmt: skip
             segments.append(SegmentReport(keep[members], report[0], report[1], report[2]))
             seg_data.append((seg_pts, seg))
     timing["grouping"] = time.perf_counter() - t
@@ -984,6 +991,44 @@ def _merge_components(
     return out
 
 
+def _edges_within(adj: Any, distance: float) -> Any:
+    """The CSR adjacency's edges of length <= ``distance`` (explicit zeros kept): the SPG
+    built with that threshold has exactly these, its rows being prefixes of the kNN rows."""
+    from scipy import sparse
+
+    keep = adj.data <= distance
+    n = adj.shape[0]
+    rows = np.repeat(np.arange(n), np.diff(adj.indptr))
+    indptr = np.zeros(n + 1, dtype=adj.indptr.dtype)
+    np.cumsum(np.bincount(rows[keep], minlength=n), out=indptr[1:])
+    out = sparse.csr_array(
+        (np.compress(keep, adj.data), np.compress(keep, adj.indices), indptr), shape=adj.shape
+    )
+    out.has_sorted_indices = True
+    return out
+
+
+def _open_components(adj: Any, comp: NDArray[np.intp]) -> set[int]:
+    """Components with an SPG edge to another component (a point's nearest neighbours
+    reach outside it): for them the component's own SPG differs from the induced graph."""
+    rows = np.repeat(np.arange(adj.shape[0]), np.diff(adj.indptr))
+    cross = comp[rows] != comp[adj.indices]
+    return {int(c) for c in np.unique(comp[rows[cross]])}
+
+
+def _induced(adj: Any, members: NDArray[np.intp]) -> Any:
+    """The SPG of a closed set of points (no neighbour outside it, sorted ``members``):
+    the induced subgraph, which is that set's own SPG (the same nearest neighbours in the
+    same order, the columns renumbered monotonically)."""
+    from mks_sim.lowlevel.normals import FixedGraph
+
+    if len(members) == adj.shape[0]:
+        return FixedGraph(adj)
+    sub = adj[members][:, members]
+    sub.sort_indices()
+    return FixedGraph(sub)
+
+
 def _group_segment(
     seg_pts: FloatArray,
     m: int,
@@ -991,8 +1036,11 @@ def _group_segment(
     viewpoint: FloatArray | None,
     table_plane: Plane | None,
     normal_rings: int = 1,
+    graph: Any = None,
 ) -> tuple[tuple[tuple[PlanarRegion, ...], Vertexes, bool], Segmentation | None]:
-    graph = build_graph(seg_pts, m=m)
+    """Planes, vertexes and whether the segment rests on the table; ``graph``: its SPG when
+    already known (else built)."""
+    graph = build_graph(seg_pts, m=m) if graph is None else graph
     try:
         seg = segment_surfaces(
             seg_pts, graph, viewpoint=viewpoint, seeds="all", normal_rings=normal_rings
