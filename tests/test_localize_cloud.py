@@ -399,48 +399,44 @@ def test_full_resolution_polish_leaves_the_table_out() -> None:
     assert np.mean(errors[True]) < 0.5 * np.mean(errors[False]), errors
 
 
-def test_one_spg_gives_the_components_and_the_closed_segments_graphs() -> None:
-    """localize_cloud builds one SPG of the object points: its edges up to the gap are the
-    thresholded SPG's (the same components), and a component none of whose points has a
-    neighbour outside it gets the induced subgraph, which is its own SPG; checked against
-    the graphs built directly, on clusters with outliers, ties (a rounded grid) and a
-    component whose nearest neighbours reach into another."""
+def test_one_spg_gives_the_components_and_the_segments_graphs() -> None:
+    """localize_cloud builds one thresholded SPG of the object points: a component none of
+    whose rows the threshold cut gets the induced subgraph, which is its own SPG; checked
+    against the graphs built directly, on clusters with stray points, ties (a rounded grid)
+    and components whose rows the threshold cut."""
     from scipy.sparse import csgraph
 
-    from mks_sim.localization.pipeline import _edges_within, _induced, _open_components
+    from mks_sim.localization.pipeline import _cut_components, _induced
     from mks_sim.lowlevel.normals import build_graph
 
     rng = np.random.default_rng(11)
     for trial in range(6):
-        blobs = [rng.uniform(0.0, 0.02, size=(int(rng.integers(600, 1500)), 3)) + c
-                 for c in rng.uniform(-0.1, 0.1, size=(3, 3))]  # fmt: skip
+        # patches of surface (as a scan samples one), tilted
+        blobs = []
+        for c in rng.uniform(-0.1, 0.1, size=(3, 3)):
+            n = int(rng.integers(600, 1500))
+            flat = np.column_stack([rng.uniform(0.0, 0.02, (n, 2)), rng.normal(0, 1e-4, n)])
+            blobs.append(flat @ random_rotation(rng).T + c)
         if trial % 2:
             blobs = [np.round(b, 3) for b in blobs]  # ties on a millimetre grid
-        blobs.append(rng.uniform(-0.15, 0.15, size=(5, 3)))  # isolated outliers
+        blobs.append(rng.uniform(-0.15, 0.15, size=(5, 3)))  # stray points
         pts = np.unique(np.concatenate(blobs), axis=0)
         rng.shuffle(pts)
         gap = 0.004 * (1 + trial % 3)
-        adj = build_graph(pts, m=12).adjacency
-        want = build_graph(pts, m=12, threshold=gap).adjacency
-        got = _edges_within(adj, gap)
-        assert np.array_equal(got.indptr, want.indptr)
-        assert np.array_equal(got.indices, want.indices)
-        assert np.array_equal(got.data, want.data)
-        _, comp = csgraph.connected_components(got, directed=True, connection="weak")
-        open_comps = _open_components(adj, comp)
-        closed = [c for c in range(comp.max() + 1) if c not in open_comps]
-        assert open_comps and any(np.sum(comp == c) >= 20 for c in closed), (trial, open_comps)
-        for c in range(comp.max() + 1):
+        adj = build_graph(pts, m=12, threshold=gap).adjacency
+        _, comp = csgraph.connected_components(adj, directed=True, connection="weak")
+        cut = _cut_components(adj, comp, 12)
+        closed = [c for c in range(comp.max() + 1) if c not in cut and np.sum(comp == c) > 12]
+        assert cut and closed, (trial, cut)
+        for c in closed:
             members = np.flatnonzero(comp == c)
-            if c in open_comps or len(members) < 20:
-                continue
             own = build_graph(pts[members], m=12).adjacency
             sub = _induced(adj, members).adjacency
             assert np.array_equal(sub.indptr, own.indptr)
             assert np.array_equal(sub.indices, own.indices)
             assert np.array_equal(sub.data, own.data)
-        # an open component's own SPG is not the induced graph: its rows lose neighbours
-        for c in open_comps:
+        # a cut component's own SPG is not the induced graph: the induced rows are short
+        for c in cut:
             members = np.flatnonzero(comp == c)
             if len(members) > 12:
                 assert _induced(adj, members).adjacency.nnz < 12 * len(members)

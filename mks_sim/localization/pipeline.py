@@ -769,16 +769,14 @@ def localize_cloud(
     segments: list[SegmentReport] = []
     seg_data: list[tuple[FloatArray, Segmentation | None]] = []
     if len(obj) >= min_segment_points:
-        # One SPG of the object points: its edges up to 4 spacings give the components, and
-        # it is the SPG of each segment none of whose points has a neighbour outside it.
-        adj = build_graph(obj, m=m).adjacency
+        # One SPG of the object points, edges up to 4 spacings: its components, and the SPG
+        # of each segment whose points all have their m neighbours within that distance.
+        adj = build_graph(obj, m=m, threshold=4.0 * spacing).adjacency
         from scipy.sparse import csgraph
 
-        _, comp = csgraph.connected_components(
-            _edges_within(adj, 4.0 * spacing), directed=True, connection="weak"
-        )
+        _, comp = csgraph.connected_components(adj, directed=True, connection="weak")
         comp = _merge_components(obj, comp, surface.size)
-        open_comps = _open_components(adj, comp)
+        open_comps = _cut_components(adj, comp, m)
         sizes = np.bincount(comp)
         for c in np.argsort(-sizes):
             if sizes[c] < min_segment_points:
@@ -993,35 +991,20 @@ def _merge_components(
     return out
 
 
-def _edges_within(adj: Any, distance: float) -> Any:
-    """The CSR adjacency's edges of length <= ``distance`` (explicit zeros kept): the SPG
-    built with that threshold has exactly these, its rows being prefixes of the kNN rows."""
-    from scipy import sparse
-
-    keep = adj.data <= distance
-    n = adj.shape[0]
-    rows = np.repeat(np.arange(n), np.diff(adj.indptr))
-    indptr = np.zeros(n + 1, dtype=adj.indptr.dtype)
-    np.cumsum(np.bincount(rows[keep], minlength=n), out=indptr[1:])
-    out = sparse.csr_array(
-        (np.compress(keep, adj.data), np.compress(keep, adj.indices), indptr), shape=adj.shape
-    )
-    out.has_sorted_indices = True
-    return out
-
-
-def _open_components(adj: Any, comp: NDArray[np.intp]) -> set[int]:
-    """Components with an SPG edge to another component (a point's nearest neighbours
-    reach outside it): for them the component's own SPG differs from the induced graph."""
-    rows = np.repeat(np.arange(adj.shape[0]), np.diff(adj.indptr))
-    cross = comp[rows] != comp[adj.indices]
-    return {int(c) for c in np.unique(comp[rows[cross]])}
+def _cut_components(adj: Any, comp: NDArray[np.intp], m: int) -> set[int]:
+    """Components holding a point whose SPG row the threshold cut (fewer than ``m``
+    neighbours): for them the component's own SPG may differ from the induced graph."""
+    short = np.diff(adj.indptr) < m
+    return {int(c) for c in np.unique(comp[short])}
 
 
 def _induced(adj: Any, members: NDArray[np.intp]) -> Any:
-    """The SPG of a closed set of points (no neighbour outside it, sorted ``members``):
-    the induced subgraph, which is that set's own SPG (the same nearest neighbours in the
-    same order, the columns renumbered monotonically)."""
+    """The SPG of a component none of whose rows the threshold cut (sorted ``members``):
+    each point's ``m`` nearest neighbours are within the threshold, so in the component,
+    and the induced subgraph is the component's own SPG (the same neighbours, the columns
+    renumbered monotonically). (An SPG without the threshold gave the components as
+    well, but a noisy scan's stray points then had far rows, found by brute force: a 1 mm
+    noise cube's grouping 9 -> 17 ms.)"""
     from mks_sim.lowlevel.normals import FixedGraph
 
     if len(members) == adj.shape[0]:
