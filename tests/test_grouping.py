@@ -126,6 +126,12 @@ def test_curved_region_of_cube_and_sphere_scene() -> None:
     assert big[0].sphere.radius == pytest.approx(3.0, abs=0.02)
     assert np.linalg.norm(big[0].sphere.center - [0, 0, 12]) < 0.02
     assert len(seg.planes) == 6
+    # without the curved regions (localize_cloud's grouping): the same planar regions
+    flat = segment_surfaces(
+        np.vstack([cube, sphere]), viewpoint=np.array([20.0, 20.0, 40.0]), curved=False
+    )
+    assert flat.curved == () and np.array_equal(flat.labels, seg.labels)
+    assert [p.indices.tolist() for p in flat.planes] == [p.indices.tolist() for p in seg.planes]
 
 
 def test_robust_plane_fits_reject_outliers() -> None:

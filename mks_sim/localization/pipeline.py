@@ -1027,9 +1027,11 @@ def _group_segment(
     already known (else built)."""
     graph = build_graph(seg_pts, m=m) if graph is None else graph
     try:
+        # (no curved regions: nothing here asks for them, and their sphere fits cost ~1 ms)
         seg = segment_surfaces(
-            seg_pts, graph, viewpoint=viewpoint, seeds="all", normal_rings=normal_rings
-        )
+            seg_pts, graph, viewpoint=viewpoint, seeds="all", normal_rings=normal_rings,
+            curved=False,
+        )  # fmt: skip
     except DataError:
         empty = Vertexes(
             np.zeros((0, 3)), np.zeros((0, 3), np.intp), np.zeros((0, 3, 3)), np.zeros(0)

@@ -532,6 +532,7 @@ def segment_surfaces(
     seeds: str = "planar",
     normal_rings: int = 1,
     surface_normals: SurfaceNormals | None = None,
+    curved: bool = True,
 ) -> Segmentation:
     """Group a cloud on its SPG into planar regions and curved regions (sections 2.2, 4.1).
 
@@ -553,6 +554,8 @@ def segment_surfaces(
         surface_normals: normals and curvature of ``points`` already estimated on ``graph``
             (a :class:`~mks_sim.localization.representation.Representation` computes them
             once); ``viewpoint`` and ``normal_rings`` are then unused.
+        curved: also group the curved points and fit each group's sphere (False: no curved
+            regions; the planar ones do not depend on them).
 
     Returns:
         :class:`Segmentation`.
@@ -581,15 +584,15 @@ def segment_surfaces(
         distance=dist,
         min_points=min_points,
     )
-    curved = _curved_regions(pts, graph, (codes > 0) & (labels < 0), min_points)
-    log.debug("segment_surfaces: %d planar, %d curved regions", len(planes), len(curved))
+    regions = _curved_regions(pts, graph, (codes > 0) & (labels < 0), min_points) if curved else []
+    log.debug("segment_surfaces: %d planar, %d curved regions", len(planes), len(regions))
     return Segmentation(
         normals=sn.normals,
         curvature=sn.curvature,
         codes=codes,
         labels=labels,
         planes=tuple(planes),
-        curved=tuple(curved),
+        curved=tuple(regions),
         spacing=spacing,
     )
 
