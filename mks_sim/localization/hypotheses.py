@@ -688,8 +688,12 @@ def plane_pair_hypotheses(
         )
         t = rhs @ lhs_inv.T  # (K, 3)
         ok &= np.all(np.isfinite(t), axis=1) & np.all(np.isfinite(Rs), axis=(1, 2))
-        for k in np.flatnonzero(ok):
-            out.append((0.0, make_transform(Rs[k], t[k])))
+        idx = np.flatnonzero(ok)
+        Ts = np.zeros((len(idx), 4, 4))  # make_transform's matrices, all at once
+        Ts[:, :3, :3] = Rs[idx]
+        Ts[:, :3, 3] = t[idx]
+        Ts[:, 3, 3] = 1.0
+        out.extend((0.0, T) for T in Ts)
     if out:
         quick = batch_inlier_fractions(
             model.surface, sub, np.stack([o[1] for o in out]), inlier_distance
@@ -697,7 +701,12 @@ def plane_pair_hypotheses(
         out = [(float(q), o[1]) for q, o in zip(quick, out)]
     out.sort(key=lambda o: -o[0])
     ref = model.vertexes.mean(axis=0)
-    return [PoseHypothesis(T, T[:3, :3] @ ref + T[:3, 3], votes=0) for _, T in out[:keep]]
+    top = [T for _, T in out[:keep]]
+    if not top:
+        return []
+    refs = np.stack([T[:3, :3] @ ref + T[:3, 3] for T in top])  # (each as before)
+    none = np.zeros((0, 2), dtype=np.int64)
+    return PoseHypothesis.many(np.stack(top), refs, [0] * len(top), [none] * len(top))
 
 
 def _rotinv_hypotheses(
