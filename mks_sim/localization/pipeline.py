@@ -413,17 +413,16 @@ def _segment_verified(
     from mks_sim.localization.verify import surface_coverage
 
     syms = symmetries
+
+    def check(candidates: list[PoseHypothesis], **how: Any) -> list[Any]:
+        """The candidates refined and scored on this segment (``how``: the ICP's limits)."""
+        return verify_hypotheses(
+            candidates, surface, seg_pts, inlier_distance=inlier, symmetries=syms, rng=rng,
+            **verify_options, **how,
+        )  # fmt: skip
+
     t = time.perf_counter()
-    verified = verify_hypotheses(
-        hyps,
-        surface,
-        seg_pts,
-        inlier_distance=inlier,
-        symmetries=syms,
-        max_icp=max_icp,
-        rng=rng,
-        **verify_options,
-    )
+    verified = check(hyps, max_icp=max_icp)
     t_ver = time.perf_counter() - t
     t_hyp = 0.0
     best = verified[0].hypothesis.score if verified else 0.0
@@ -433,16 +432,7 @@ def _segment_verified(
         t_hyp += time.perf_counter() - t
         if extra:
             t = time.perf_counter()
-            verified += verify_hypotheses(
-                extra,
-                surface,
-                seg_pts,
-                inlier_distance=inlier,
-                symmetries=syms,
-                max_icp=max_icp,
-                rng=rng,
-                **verify_options,
-            )
+            verified += check(extra, max_icp=max_icp)
             verified.sort(key=lambda v: (-v.hypothesis.score, v.hypothesis.rmse))
             best = verified[0].hypothesis.score if verified else 0.0
             t_ver += time.perf_counter() - t
@@ -457,16 +447,8 @@ def _segment_verified(
                 log.info("plane-pair hypotheses failed: %s", exc)
         t_hyp += time.perf_counter() - t
         t = time.perf_counter()
-        verified += verify_hypotheses(
-            coarse,
-            surface,
-            seg_pts,
-            inlier_distance=inlier,
-            icp_distance=max(4 * inlier, 0.1 * surface.size),
-            symmetries=syms,
-            max_icp=max(4, max_icp // 2),
-            rng=rng,
-            **verify_options,
+        verified += check(
+            coarse, icp_distance=max(4 * inlier, 0.1 * surface.size), max_icp=max(4, max_icp // 2)
         )
         t_ver += time.perf_counter() - t
     if verified and model is None:
@@ -479,17 +461,7 @@ def _segment_verified(
         starts = [
             replace(h0, matrix=h0.matrix @ H, votes=0) for H in principal_half_turns(surface.points)
         ]
-        turned = verify_hypotheses(
-            starts,
-            surface,
-            seg_pts,
-            inlier_distance=inlier,
-            symmetries=syms,
-            max_icp=len(starts),
-            full_refine=len(starts),
-            rng=rng,
-            **verify_options,
-        )
+        turned = check(starts, max_icp=len(starts), full_refine=len(starts))
         verified = merge_verified(verified + turned, syms, max(inlier, 0.01 * surface.size))
         t_ver += time.perf_counter() - t
     if not verified:
