@@ -103,7 +103,7 @@ def voxel_average(points: FloatArray, voxel: float, shift: float = 0.0) -> Float
             means = _gridknn.voxel_means(points, voxel, shift)
             if means is not None:
                 return means
-    cells = np.floor(points / voxel + shift) if shift else np.floor(points / voxel)
+    cells = np.floor(points / voxel + shift)  # (+ 0.0 leaves every quotient as it is)
     _, inverse, counts = unique_cells(cells.astype(np.int64), first=False)
     out = np.zeros((len(counts), 3))
     for d in range(3):
