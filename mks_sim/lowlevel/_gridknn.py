@@ -164,7 +164,11 @@ def _cell_size(
 
 
 def grid_knn(
-    points: NDArray[np.float64], m: int, threshold: float | None, workers: int = -1
+    points: NDArray[np.float64],
+    m: int,
+    threshold: float | None,
+    workers: int = -1,
+    rows: NDArray[np.bool_] | None = None,
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:
     """Exact SPG rows of (N, k <= 3) Euclidean points, where the grid can prove them.
 
@@ -173,6 +177,7 @@ def grid_knn(
         m: neighbours per row.
         threshold: keep neighbours at distance <= threshold; None: no limit.
         workers: threads (-1: all cores).
+        rows: (N,) the rows to answer (None: all); the others are left not done.
 
     Returns:
         (nbr (N, m), dist (N, m), lens (N,), done (N,)): row i's first ``lens[i]`` entries,
@@ -224,13 +229,13 @@ def grid_knn(
     old = numba.get_num_threads()
     numba.set_num_threads(threads)
     try:
-        todo = np.ones(n, bool)
+        todo = np.ones(n, bool) if rows is None else rows[sidx]
         for ring in _RINGS:
             kern["knn"](
                 sx, sy, sz, sidx, ccoord, ckey, cstart, colptr, todo, lo, h, dims, m, thr, ring, margin,
                 _MAX_BLOCK, nbr, dist, lens, done,
             )  # fmt: skip
-            todo = ~done[sidx]
+            todo = ~done[sidx] if rows is None else ~done[sidx] & todo
             if not todo.any():
                 break
     finally:

@@ -188,6 +188,7 @@ def fit_plane_ransac(
     threshold: float,
     rng: np.random.Generator,
     iterations: int = 200,
+    fit_points: int | None = None,
 ) -> tuple[Plane, NDArray[np.bool_]]:
     """RANSAC plane (3-point samples) refined by :func:`fit_plane` on its inliers.
 
@@ -196,6 +197,8 @@ def fit_plane_ransac(
         threshold: inlier distance (points' units).
         rng: random generator (samples).
         iterations: RANSAC samples.
+        fit_points: the refinement fits at most this many of the best candidate's inliers
+            (every k-th; None: all of them).
 
     Returns:
         ``(plane, inliers)`` with (N,) bool inlier mask of the refined plane.
@@ -226,8 +229,11 @@ def fit_plane_ransac(
             if counts[j] > best_count:
                 best, best_count = start + j, int(counts[j])
     inliers = np.abs(pts @ nrm[best] - off[best]) <= threshold
+    fit = np.compress(inliers, pts, axis=0)
+    if fit_points is not None and len(fit) > fit_points:
+        fit = fit[:: -(-len(fit) // fit_points)]
     plane = (
-        fit_plane(np.compress(inliers, pts, axis=0))
+        fit_plane(fit)
         if inliers.sum() >= 3
         else Plane(nrm[best], float(off[best]))
     )
@@ -533,6 +539,7 @@ def segment_surfaces(
     normal_rings: int = 1,
     surface_normals: SurfaceNormals | None = None,
     curved: bool = True,
+    curvature_rings: int = 2,
 ) -> Segmentation:
     """Group a cloud on its SPG into planar regions and curved regions (sections 2.2, 4.1).
 
@@ -569,7 +576,10 @@ def segment_surfaces(
     if surface_normals is not None and len(surface_normals.normals) == len(pts):
         sn = surface_normals
     else:
-        sn = estimate_normals(pts, graph, viewpoint=viewpoint, normal_rings=normal_rings)
+        sn = estimate_normals(
+            pts, graph, viewpoint=viewpoint, normal_rings=normal_rings,
+            curvature_rings=curvature_rings,
+        )  # fmt: skip
     codes = curvature_code(sn.curvature, curvature_threshold)
     spacing = median_spacing(graph)
     dist = 2.0 * spacing if distance is None else float(distance)
