@@ -61,6 +61,14 @@ def test_batch_inlier_fractions_equal_score_pose() -> None:
     brute = [score_pose(surface, scene, T, 0.002)[1] for T in mats]
     np.testing.assert_allclose(batch, brute, atol=1e-12)
     assert batch[0] > 0.99 and batch[1:].max() < batch[0]
+    # on the lookup grid: the compiled pass and numpy count the same inliers, and both
+    # agree with score_pose on that grid
+    surface.with_lookup()
+    on_grid = [score_pose(surface, scene, T, 0.002)[1] for T in mats]
+    for compiled in (True, False):
+        batch = batch_inlier_fractions(surface, scene, np.stack(mats), 0.002, compiled=compiled)
+        np.testing.assert_allclose(batch, on_grid, atol=1e-12)
+    assert on_grid[0] > 0.99 and max(on_grid[1:]) < on_grid[0]
 
 
 def test_batch_explained_counts_model_samples_near_the_scene() -> None:

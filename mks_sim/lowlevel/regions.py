@@ -229,9 +229,11 @@ def fit_plane_ransac(
             if counts[j] > best_count:
                 best, best_count = start + j, int(counts[j])
     inliers = np.abs(pts @ nrm[best] - off[best]) <= threshold
-    fit = np.compress(inliers, pts, axis=0)
-    if fit_points is not None and len(fit) > fit_points:
-        fit = fit[:: -(-len(fit) // fit_points)]
+    if fit_points is not None and np.count_nonzero(inliers) > fit_points:
+        at = np.flatnonzero(inliers)
+        fit = pts[at[:: -(-len(at) // fit_points)]]
+    else:
+        fit = np.compress(inliers, pts, axis=0)
     plane = (
         fit_plane(fit)
         if inliers.sum() >= 3

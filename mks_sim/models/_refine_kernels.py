@@ -116,3 +116,51 @@ def lookup_nearest(
             d[i] = di
             j[i] = q
     return d, j, outside
+
+
+@nb.njit(cache=True)
+def lookup_inlier_counts(
+    scene: np.ndarray,
+    T: np.ndarray,
+    origin: np.ndarray,
+    cell: float,
+    shape: np.ndarray,
+    index: np.ndarray,
+    points: np.ndarray,
+    normals: np.ndarray,
+    max_distance: float,
+    inlier: float,
+) -> np.ndarray:  # pragma: no cover
+    """(K,) inlier counts of the scene points under K poses: each point moved into the
+    model frame (``R^T (p - t)``), its sample looked up on the grid (as
+    :func:`lookup_nearest`: a miss off the grid or at ``max_distance``), an inlier when its
+    point-to-plane distance to that sample is at most ``inlier``. (The caller makes sure no
+    query off the grid could have a sample within ``max_distance``.)"""
+    k_poses = T.shape[0]
+    n = scene.shape[0]
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    out = np.zeros(k_poses, np.int64)
+    for k in range(k_poses):
+        count = 0
+        for i in range(n):
+            dx0 = scene[i, 0] - T[k, 0, 3]
+            dx1 = scene[i, 1] - T[k, 1, 3]
+            dx2 = scene[i, 2] - T[k, 2, 3]
+            px = dx0 * T[k, 0, 0] + dx1 * T[k, 1, 0] + dx2 * T[k, 2, 0]
+            py = dx0 * T[k, 0, 1] + dx1 * T[k, 1, 1] + dx2 * T[k, 2, 1]
+            pz = dx0 * T[k, 0, 2] + dx1 * T[k, 1, 2] + dx2 * T[k, 2, 2]
+            cx = int(np.rint((px - origin[0]) / cell))
+            cy = int(np.rint((py - origin[1]) / cell))
+            cz = int(np.rint((pz - origin[2]) / cell))
+            if cx < 0 or cx >= nx or cy < 0 or cy >= ny or cz < 0 or cz >= nz:
+                continue
+            q = index[(cx * ny + cy) * nz + cz]
+            ex = px - points[q, 0]
+            ey = py - points[q, 1]
+            ez = pz - points[q, 2]
+            if not np.sqrt(ex * ex + ey * ey + ez * ez) < max_distance:
+                continue
+            if abs(ex * normals[q, 0] + ey * normals[q, 1] + ez * normals[q, 2]) <= inlier:
+                count += 1
+        out[k] = count
+    return out
