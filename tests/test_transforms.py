@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from mks_sim.errors import DataError
 from mks_sim.geometry.transforms import (
     apply,
+    cross3,
     cube_rotations,
     from_row_convention,
     invert,
@@ -216,3 +217,12 @@ def test_rotation_from_covariance_batched_recovers_rotations_and_matches_single(
     mirror = np.diag([1.0, 1.0, -1.0])
     R_m = rotation_from_covariance(src.T @ (src @ mirror.T))
     assert np.linalg.det(R_m) == pytest.approx(1.0)
+
+
+def test_cross3_is_numpys_cross_to_the_bit() -> None:
+    rng = np.random.default_rng(4)
+    for _ in range(2000):
+        a = rng.normal(size=3) * 10.0 ** rng.uniform(-6, 6)
+        b = rng.normal(size=3) * 10.0 ** rng.uniform(-6, 6)
+        assert np.array_equal(cross3(a, b), np.cross(a, b))
+    assert cross3([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]).tolist() == [0.0, 0.0, 1.0]

@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from mks_sim.errors import DataError, MksError
 from mks_sim.geometry.keypoints import unique_cells
 from mks_sim.geometry.points import fibonacci_sphere
-from mks_sim.geometry.transforms import make_transform, rotation_from_covariance
+from mks_sim.geometry.transforms import cross3, make_transform, rotation_from_covariance
 from mks_sim.lowlevel._gridknn import column_mean
 from mks_sim.lowlevel.grouping import Vertexes
 from mks_sim.lowlevel.regions import Plane
@@ -609,12 +609,12 @@ def _corner_correspondences(j: NDArray[np.intp], n_detected: int) -> list[NDArra
 def _frame(a: FloatArray, b: FloatArray) -> FloatArray:
     """(3, 3) orthonormal frame (columns) from two non-parallel directions."""
     e1 = a / np.linalg.norm(a)
-    e3 = np.cross(a, b)
+    e3 = cross3(a, b)
     norm = np.linalg.norm(e3)
     if norm < 1e-9:  # callers filter near-parallel pairs; never divide by zero into NaN frames
         raise DataError(f"_frame: directions {a} and {b} are parallel")
     e3 /= norm
-    return np.column_stack([e1, np.cross(e3, e1), e3])
+    return np.column_stack([e1, cross3(e3, e1), e3])
 
 
 def plane_pair_hypotheses(
@@ -667,7 +667,7 @@ def plane_pair_hypotheses(
         af = np.einsum("kpi,kji,j->kp", A_ex, Rs, f_dir)
         ok = (np.ptp(pe) <= np.ptp(ae, axis=1) + slack) & (np.ptp(pf) <= np.ptp(af, axis=1) + slack)
         if q_pts is not None:
-            g = np.cross(Q.normal, e)  # Q's in-plane direction across the shared edge
+            g = cross3(Q.normal, e)  # Q's in-plane direction across the shared edge
             qe, qg = q_pts @ e, q_pts @ g
             be = np.einsum("kpi,kji,j->kp", B_ex, Rs, e)
             bg = np.einsum("kpi,kji,j->kp", B_ex, Rs, g)

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from mks_sim.geometry.transforms import cross3
 from mks_sim.lowlevel import _gridknn
 from mks_sim.lowlevel._gridknn import column_mean
 from mks_sim.lowlevel.regions import Plane, fit_plane_ransac
@@ -104,9 +105,9 @@ def find_table(
         return None, 0.0, none
     # Footprint: the objects, projected into the plane, well inside the inliers' extent.
     n = plane.normal
-    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u = cross3(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
     u /= np.linalg.norm(u)
-    w = np.cross(n, u)
+    w = cross3(n, u)
     uv_in = np.compress(inl, points, axis=0) @ np.column_stack([u, w])
     uv_off = np.compress(off, points, axis=0) @ np.column_stack([u, w])
     lo, hi = _gridknn.column_bounds(uv_in)
