@@ -863,58 +863,108 @@ def smallest_vectors(cov, lam0, q, safe):
     return out, bad
 
 
+@nb.njit(cache=True, parallel=True)
+def voxel_keys(points, voxel, shift, lo0, lo1, lo2, s1, s2):
+    """(N,) mixed-radix key of each point's cell ``floor(p / voxel + shift)`` relative to the
+    lowest cell (lo0, lo1, lo2) of a box (s0, s1, s2) cells wide."""
+    n = points.shape[0]
+    keys = np.empty(n, np.int64)
+    for i in nb.prange(n):
+        c0 = math.floor(points[i, 0] / voxel + shift) - lo0
+        c1 = math.floor(points[i, 1] / voxel + shift) - lo1
+        c2 = math.floor(points[i, 2] / voxel + shift) - lo2
+        keys[i] = (c0 * (s1 * s2) + c1 * s2) + c2
+    return keys
+
+
+@nb.njit(cache=True)
+def radix_pairs(keys, bits):
+    """(sorted keys, order): a stable LSD radix sort of non-negative int64 ``keys`` below
+    2**bits, 11 bits a pass, the keys carried along (each pass reads them in sequence)."""
+    n = keys.shape[0]
+    ka = keys.copy()
+    ia = np.arange(n)
+    kb = np.empty(n, np.int64)
+    ib = np.empty(n, np.int64)
+    count = np.empty(2049, np.int64)
+    shift = 0
+    while shift < bits:
+        count[:] = 0
+        for i in range(n):
+            count[((ka[i] >> shift) & 2047) + 1] += 1
+        for d in range(2048):
+            count[d + 1] += count[d]
+        for i in range(n):
+            d = (ka[i] >> shift) & 2047
+            p = count[d]
+            kb[p] = ka[i]
+            ib[p] = ia[i]
+            count[d] = p + 1
+        ka, kb = kb, ka
+        ia, ib = ib, ia
+        shift += 11
+    return ka, ia
+
+
 @nb.njit(cache=True)
 def voxel_means(points, voxel, shift):
     """(M, 3) centroids of the points in each occupied cube of edge ``voxel``, cells in
     lexicographic order, as ``representation.voxel_average`` computes them with numpy:
-    cells ``floor(p / voxel + shift)``, one mixed-radix key per cell, and each centroid's sums added
-    in the points' order (``np.bincount``'s), divided by the count; (empty, False) when
-    the cells span too much for one int64 key."""
+    cells ``floor(p / voxel + shift)``, one mixed-radix key per cell, and each centroid's
+    sums added in the points' order (``np.bincount``'s; the sort is stable), divided by the
+    count; (empty, False) when the cells span too much for one int64 key. The lowest and
+    highest cells are those of the coordinates' bounds (the cell of a coordinate never
+    decreases with it)."""
     n = points.shape[0]
-    cx = np.empty(n, np.int64)
-    cy = np.empty(n, np.int64)
-    cz = np.empty(n, np.int64)
-    for i in range(n):
-        cx[i] = math.floor(points[i, 0] / voxel + shift)
-        cy[i] = math.floor(points[i, 1] / voxel + shift)
-        cz[i] = math.floor(points[i, 2] / voxel + shift)
-    lo0 = cx.min()
-    lo1 = cy.min()
-    lo2 = cz.min()
-    s0 = cx.max() - lo0 + 1
-    s1 = cy.max() - lo1 + 1
-    s2 = cz.max() - lo2 + 1
+    mn0 = mx0 = points[0, 0]
+    mn1 = mx1 = points[0, 1]
+    mn2 = mx2 = points[0, 2]
+    for i in range(1, n):
+        x = points[i, 0]
+        y = points[i, 1]
+        z = points[i, 2]
+        mn0 = min(mn0, x)
+        mx0 = max(mx0, x)
+        mn1 = min(mn1, y)
+        mx1 = max(mx1, y)
+        mn2 = min(mn2, z)
+        mx2 = max(mx2, z)
+    lo0 = math.floor(mn0 / voxel + shift)
+    lo1 = math.floor(mn1 / voxel + shift)
+    lo2 = math.floor(mn2 / voxel + shift)
+    s0 = math.floor(mx0 / voxel + shift) - lo0 + 1
+    s1 = math.floor(mx1 / voxel + shift) - lo1 + 1
+    s2 = math.floor(mx2 / voxel + shift) - lo2 + 1
     if float(s0) * float(s1) * float(s2) >= 2.0**62:
         return np.empty((0, 3)), False
-    keys = np.empty(n, np.int64)
-    top = 0
-    for i in range(n):
-        k = ((cx[i] - lo0) * (s1 * s2) + (cy[i] - lo1) * s2) + (cz[i] - lo2)
-        keys[i] = k
-        if k > top:
-            top = k
+    keys = voxel_keys(points, voxel, shift, lo0, lo1, lo2, s1, s2)
+    top = s0 * s1 * s2 - 1
     bits = 1
     while (top >> bits) > 0:
         bits += 1
-    order = radix_order(keys, bits)
-    inverse = np.empty(n, np.int64)
-    m = 0
+    skeys, order = radix_pairs(keys, bits)
+    sums = np.empty((n, 3))
+    counts = np.empty(n, np.int64)
+    m = -1
+    prev = -1
     for r in range(n):
         j = order[r]
-        if r > 0 and keys[j] != keys[order[r - 1]]:
+        if skeys[r] != prev:
             m += 1
-        inverse[j] = m
+            prev = skeys[r]
+            sums[m, 0] = points[j, 0]
+            sums[m, 1] = points[j, 1]
+            sums[m, 2] = points[j, 2]
+            counts[m] = 1
+        else:
+            sums[m, 0] += points[j, 0]
+            sums[m, 1] += points[j, 1]
+            sums[m, 2] += points[j, 2]
+            counts[m] += 1
     m += 1
-    sums = np.zeros((m, 3))
-    counts = np.zeros(m, np.int64)
-    for i in range(n):
-        c = inverse[i]
-        sums[c, 0] += points[i, 0]
-        sums[c, 1] += points[i, 1]
-        sums[c, 2] += points[i, 2]
-        counts[c] += 1
+    out = np.empty((m, 3))
     for c in range(m):
-        sums[c, 0] = sums[c, 0] / counts[c]
-        sums[c, 1] = sums[c, 1] / counts[c]
-        sums[c, 2] = sums[c, 2] / counts[c]
-    return sums, True
+        out[c, 0] = sums[c, 0] / counts[c]
+        out[c, 1] = sums[c, 1] / counts[c]
+        out[c, 2] = sums[c, 2] / counts[c]
+    return out, True
