@@ -68,7 +68,12 @@ def require_spread(points: ArrayLike, where: str, *, min_points: int = 3) -> Non
 
 
 def check_scale(
-    model_points: ArrayLike, scene_points: ArrayLike, scale: float = 1.0, *, ratio: float = 10.0
+    model_points: ArrayLike | None,
+    scene_points: ArrayLike,
+    scale: float = 1.0,
+    *,
+    ratio: float = 10.0,
+    model_extent: float | None = None,
 ) -> str | None:
     """A warning message when the scaled model and the scene differ in size by > ``ratio``.
 
@@ -80,12 +85,18 @@ def check_scale(
         scene_points: (N, 3) scene points, scene units (NaN allowed).
         scale: the factor the caller will apply to the model (model units -> scene units).
         ratio: tolerated size ratio.
+        model_extent: ``extent(model_points)`` when the caller has it (a long-lived model
+            computes it once); ``model_points`` is then not read.
 
     Returns:
         None when plausible, else a message naming both sizes and the suggested scale (also
         logged as a warning).
     """
-    m = extent(model_points) * scale
+    if model_extent is None:
+        if model_points is None:
+            raise DataError("check_scale: expected the model's points or its extent")
+        model_extent = extent(model_points)
+    m = model_extent * scale
     s = extent(scene_points)
     if m <= 0 or s <= 0:
         return None

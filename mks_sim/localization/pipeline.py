@@ -695,8 +695,14 @@ def localize_cloud(
     if len(pts) < 10:
         raise DataError(f"localize_cloud: expected at least 10 finite scene points, got {len(pts)}")
     vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(3)
-    # Extent is linear in scale: the unscaled model's points times `scale` are loc_model's.
-    size_warning = check_scale(loc_model.surface_points() / scale, pts, scale)
+    surface = (
+        loc_model.surface
+        if isinstance(loc_model, PolyhedralModel)
+        else ModelSurface.from_arrays(loc_model.surface_points(), loc_model.surface_normals())
+    )
+    # Extent is linear in scale: the unscaled model's points times `scale` are loc_model's
+    # (a model's extent is computed once, on its surface).
+    size_warning = check_scale(None, pts, scale, model_extent=surface.extent / scale)
 
     t = time.perf_counter()
     spacing, noise = _spacing_and_noise(pts, rng)
@@ -740,11 +746,6 @@ def localize_cloud(
     obj = pts[keep]
     timing["table"] = time.perf_counter() - t
 
-    surface = (
-        loc_model.surface
-        if isinstance(loc_model, PolyhedralModel)
-        else ModelSurface.from_arrays(loc_model.surface_points(), loc_model.surface_normals())
-    )
     t = time.perf_counter()
     segments: list[SegmentReport] = []
     seg_data: list[tuple[FloatArray, Segmentation | None]] = []

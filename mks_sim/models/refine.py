@@ -81,6 +81,14 @@ class ModelSurface:
         """Diagonal of the bounding box (the object's size, points' units)."""
         return float(np.linalg.norm(np.ptp(self.points, axis=0)))
 
+    @functools.cached_property
+    def extent(self) -> float:
+        """:func:`mks_sim.io.units.extent` of the samples (the unit check's model size),
+        computed once."""
+        from mks_sim.io.units import extent
+
+        return extent(self.points)
+
     @property
     def lookup(self) -> NearestLookup | None:
         """The nearest-sample grid (:meth:`with_lookup`), None until it is built."""
