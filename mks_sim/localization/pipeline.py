@@ -980,8 +980,8 @@ def _segment_graph(adj: Any, members: NDArray[np.intp], points: FloatArray, m: i
     monotonically); a row it cut (fewer than ``m``: a stray or fringe point) is asked anew
     among the component's points, by the SPG's own compiled grid for those rows alone
     (:func:`~mks_sim.lowlevel._gridknn.grid_knn`). The same graph as building the
-    component's SPG (a 240 x 180 cube scan's 2,000-point segment with 2-120 cut rows:
-    1.8-3.1 ms to build, the whole graph here in a fraction). (An SPG without the
+    component's SPG (a 2,000-point segment with 2-120 cut rows: 1.4-3.1 ms to build,
+    0.5-0.7 ms here). (An SPG without the
     threshold gave the components as well, but a noisy scan's stray points then had far
     rows, found by brute force: a 1 mm noise cube's grouping 9 -> 17 ms.) None when the
     compiled grid is unavailable or cannot prove a cut row (the caller builds the SPG)."""
