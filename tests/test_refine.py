@@ -153,11 +153,19 @@ def test_group_equivalent_recognises_cube_symmetries() -> None:
     assert len(set(labels)) == 24  # without symmetries they are distinct
 
 
-@pytest.mark.parametrize("n", [60, 300])  # every pair at once; a pose at a time
-def test_group_equivalent_labels_as_the_first_representative_rule(n: int) -> None:
+@pytest.mark.parametrize(
+    ("n", "compiled"), [(60, True), (60, False), (300, True)]
+)  # every pair at once (the representatives compiled or by the Python loop); a pose at a time
+def test_group_equivalent_labels_as_the_first_representative_rule(
+    n: int, compiled: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """Brute force: pose i joins the first earlier representative within the translation
     tolerance whose rotation times some symmetry is within the angle; else it represents."""
+    import mks_sim.models.refine as refine
     from mks_sim.geometry.transforms import rotation_angle_deg
+
+    if not compiled:
+        monkeypatch.setattr(refine, "_GROUP_COMPILED_MIN", 10**9)
 
     rng = np.random.default_rng(5)
     rots = cube_rotations()

@@ -164,3 +164,21 @@ def lookup_inlier_counts(
                 count += 1
         out[k] = count
     return out
+
+
+@nb.njit(cache=True)
+def first_representatives(same: np.ndarray) -> np.ndarray:  # pragma: no cover
+    """(H,) labels of H poses, best first: pose i joins the first earlier representative
+    ``j`` with ``same[j, i]``, else it is a representative itself (label i) --
+    :func:`mks_sim.models.refine.group_equivalent`'s rule, in one compiled pass."""
+    h = same.shape[0]
+    labels = np.arange(h)
+    is_rep = np.zeros(h, np.bool_)
+    for i in range(h):
+        for j in range(i):
+            if is_rep[j] and same[j, i]:
+                labels[i] = j
+                break
+        else:
+            is_rep[i] = True
+    return labels
