@@ -389,6 +389,46 @@ def test_icp_stall_stops_a_sliding_fit_and_keeps_a_converging_one() -> None:
         assert pos < 5e-5 and rot < 0.05, (stall, pos, rot)
 
 
+@pytest.mark.skipif(not _paths()[-1], reason="needs numba")
+def test_fused_icp_takes_the_loops_steps() -> None:
+    """``fused=True`` runs the iterations in one compiled call: from the same starts on the
+    part's scans (stall, trim, two-cycle and tolerance on), the same number of iterations,
+    the same convergence, poses within 1e-12 of the loop's and at the true pose; without
+    the lookup grid, beyond its margin or about an axis it is the loop itself."""
+    rng = np.random.default_rng(7)
+    for seed in range(6):
+        surface, T_true, scene = _part_scan(np.random.default_rng(seed), 4000, 2000)
+        surface.with_lookup()
+        start = _perturb(T_true, 4.0, 0.003, rng)
+        loop = icp_point_to_plane(surface, scene, start, max_distance=0.006, stall=4)
+        fused = icp_point_to_plane(surface, scene, start, max_distance=0.006, stall=4, fused=True)
+        assert fused.iterations == loop.iterations and fused.converged == loop.converged
+        assert np.abs(fused.matrix - loop.matrix).max() < 1e-12
+        assert abs(fused.rmse - loop.rmse) < 1e-12
+        pos, rot = pose_error(fused.matrix, T_true)
+        assert rot < 0.5 and pos < 0.001
+    surface, T_true, scene = _part_scan(np.random.default_rng(0), 4000, 2000)
+    start = _perturb(T_true, 4.0, 0.003, rng)
+    bare = icp_point_to_plane(surface, scene, start, max_distance=0.006)
+    assert surface.lookup is None  # no grid: the loop, to the bit
+    assert np.array_equal(
+        icp_point_to_plane(surface, scene, start, max_distance=0.006, fused=True).matrix,
+        bare.matrix,
+    )
+    surface.with_lookup()
+    assert surface.lookup is not None
+    far = surface.lookup.margin * 2  # beyond the grid's margin: the loop (the tree answers)
+    assert np.array_equal(
+        icp_point_to_plane(surface, scene, start, max_distance=far, fused=True).matrix,
+        icp_point_to_plane(surface, scene, start, max_distance=far).matrix,
+    )
+    axis = [0.0, 0.0, 1.0]
+    assert np.array_equal(
+        icp_point_to_plane(surface, scene, start, max_distance=0.006, axis=axis, fused=True).matrix,
+        icp_point_to_plane(surface, scene, start, max_distance=0.006, axis=axis).matrix,
+    )
+
+
 def test_pose_hypothesis_arrays_are_frozen_copies_shared_by_replace() -> None:
     """A hypothesis copies a caller's arrays (changing them later changes nothing) and makes
     its own read-only; ``replace`` shares them (nothing to copy); bad shapes are DataErrors."""

@@ -182,3 +182,116 @@ def first_representatives(same: np.ndarray) -> np.ndarray:  # pragma: no cover
         else:
             is_rep[i] = True
     return labels
+
+
+@nb.njit(cache=True)
+def icp_lookup_loop(
+    scene: np.ndarray,
+    scene_to_model: np.ndarray,
+    origin: np.ndarray,
+    cell: float,
+    shape: np.ndarray,
+    index: np.ndarray,
+    points: np.ndarray,
+    normals: np.ndarray,
+    offsets: np.ndarray,
+    max_distance: float,
+    trim: float,
+    max_iterations: int,
+    tolerance: float,
+    size: float,
+    stall: int,
+    stall_gain: float,
+    cycle_max_step: float,
+    cycle_cosine: float,
+) -> tuple[np.ndarray, float, int, bool]:  # pragma: no cover
+    """The iterations of :func:`mks_sim.models.refine.icp_point_to_plane` (6 degrees of
+    freedom) in one compiled call, correspondences from the lookup grid: the same steps
+    (trim, linearised point-to-plane solve, two-cycle halving, tolerance, stall; ``stall``
+    0: none), the rounding of the transforms and the solve may differ. Returns
+    ``(scene_to_model, rmse, iterations, converged)``."""
+    n = scene.shape[0]
+    S = scene_to_model.copy()
+    p = np.empty((n, 3))
+    dist = np.empty(n)
+    jj = np.empty(n, np.int64)
+    step = np.zeros(6)
+    history = np.empty(max_iterations)
+    n_hist = 0
+    rmse = np.inf
+    converged = False
+    it = 0
+    miss = points.shape[0]
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    for it in range(1, max_iterations + 1):  # noqa: B007 - returned
+        for i in range(n):
+            x = scene[i, 0]
+            y = scene[i, 1]
+            z = scene[i, 2]
+            px = S[0, 0] * x + S[0, 1] * y + S[0, 2] * z + S[0, 3]
+            py = S[1, 0] * x + S[1, 1] * y + S[1, 2] * z + S[1, 3]
+            pz = S[2, 0] * x + S[2, 1] * y + S[2, 2] * z + S[2, 3]
+            p[i, 0] = px
+            p[i, 1] = py
+            p[i, 2] = pz
+            dist[i] = np.inf
+            jj[i] = miss
+            cx = int(np.rint((px - origin[0]) / cell))
+            cy = int(np.rint((py - origin[1]) / cell))
+            cz = int(np.rint((pz - origin[2]) / cell))
+            if cx < 0 or cx >= nx or cy < 0 or cy >= ny or cz < 0 or cz >= nz:
+                continue
+            q = index[(cx * ny + cy) * nz + cz]
+            dx = px - points[q, 0]
+            dy = py - points[q, 1]
+            dz = pz - points[q, 2]
+            di = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if di < max_distance:
+                dist[i] = di
+                jj[i] = q
+        H, g, ss, used = point_to_plane_system(p, dist, jj, normals, offsets, trim)
+        if used < 6:
+            break
+        rmse = np.sqrt(ss / used)
+        for u in range(6):
+            H[u, u] += 1e-9
+        x6 = np.linalg.solve(H, -g)
+        scaled = np.empty(6)
+        for u in range(3):
+            scaled[u] = x6[u]
+            scaled[u + 3] = x6[u + 3] / size
+        norm = np.sqrt(np.sum(scaled * scaled))
+        last = np.sqrt(np.sum(step * step))
+        cycle = (
+            norm < cycle_max_step
+            and 0.7 * last < norm < 1.4 * last
+            and np.sum(scaled * step) < -cycle_cosine * norm * last
+        )
+        if cycle:
+            x6 = 0.5 * x6
+        step = scaled
+        # dT = [Rodrigues(omega), t]; S = dT @ S
+        theta = np.sqrt(x6[0] * x6[0] + x6[1] * x6[1] + x6[2] * x6[2])
+        R = np.eye(3)
+        if theta >= 1e-12:
+            k0 = x6[0] / theta
+            k1 = x6[1] / theta
+            k2 = x6[2] / theta
+            K = np.array([[0.0, -k2, k1], [k2, 0.0, -k0], [-k1, k0, 0.0]])
+            R = np.eye(3) + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
+        dT = np.eye(4)
+        dT[:3, :3] = R
+        dT[0, 3] = x6[3]
+        dT[1, 3] = x6[4]
+        dT[2, 3] = x6[5]
+        S = dT @ S
+        trans = np.sqrt(x6[3] * x6[3] + x6[4] * x6[4] + x6[5] * x6[5])
+        if cycle or theta + trans / size < tolerance:
+            converged = True
+            break
+        history[n_hist] = rmse
+        n_hist += 1
+        if stall > 0 and n_hist > stall:
+            if rmse > (1.0 - stall_gain) * history[n_hist - 1 - stall]:
+                break
+    return S, rmse, it, converged

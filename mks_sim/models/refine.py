@@ -318,6 +318,7 @@ def icp_point_to_plane(
     axis: ArrayLike | None = None,
     compiled: bool | None = None,
     stall: int | None = None,
+    fused: bool = False,
 ) -> IcpResult:
     """Point-to-plane ICP of a model surface to scene points (scene -> model correspondences).
 
@@ -344,6 +345,11 @@ def icp_point_to_plane(
             :data:`STALL_GAIN` (0.1 %) over this many iterations: the pose slides along a fit
             that no longer improves (a wrong start in the healthy cube's scans ran all 26
             iterations); None runs to ``tolerance`` or ``max_iterations``.
+        fused: every iteration in one compiled call
+            (:func:`mks_sim.models._refine_kernels.icp_lookup_loop`: the same steps, the
+            rounding of the transforms and the solve may differ) when the surface has its
+            lookup grid (:meth:`ModelSurface.with_lookup`), ``max_distance`` is within the
+            grid's margin, ``axis`` is None and numba imports; else as without it.
 
     Returns:
         :class:`IcpResult`.
@@ -370,6 +376,21 @@ def icp_point_to_plane(
     scene_to_model = invert(T)
     size = max(surface.size, 1e-12)
     normals, offsets = surface.normals, surface.offsets
+    lookup = surface.lookup
+    if (
+        fused and basis is None and lookup is not None and max_distance <= lookup.margin
+        and _compiled_available()
+    ):  # fmt: skip
+        from mks_sim.models._refine_kernels import icp_lookup_loop
+
+        S, rmse_f, it_f, conv_f = icp_lookup_loop(
+            np.ascontiguousarray(scene), np.ascontiguousarray(scene_to_model), lookup.origin,
+            lookup.cell, np.asarray(lookup.shape, dtype=np.int64), lookup.index,
+            surface.points, normals, offsets, float(max_distance), float(trim),
+            int(max_iterations), float(tolerance), float(size), 0 if stall is None else stall,
+            STALL_GAIN, CYCLE_MAX_STEP, CYCLE_COSINE,
+        )  # fmt: skip
+        return IcpResult(invert(S), float(rmse_f), int(it_f), bool(conv_f))
     if compiled is None:
         compiled = len(scene) >= ICP_COMPILED_MIN_POINTS and _compiled_available()
     if compiled:
@@ -766,6 +787,7 @@ def verify_hypotheses(
     coarse_points: int = 500,
     rng: np.random.Generator | None = None,
     icp_stall: int | None = None,
+    icp_fused: bool = False,
 ) -> list[VerifiedHypothesis]:
     """Refine (ICP), score and rank hypotheses; report symmetric equivalents once.
 
@@ -789,6 +811,7 @@ def verify_hypotheses(
         coarse_points: scene points of the coarse ICP stage.
         rng: generator for that subset (default seeded 0).
         icp_stall: ``stall`` of the full refinement's ICP (:func:`icp_point_to_plane`).
+        icp_fused: ``fused`` of every ICP (:func:`icp_point_to_plane`).
 
     Returns:
         One :class:`VerifiedHypothesis` per distinct placement, best score first.
@@ -831,8 +854,9 @@ def verify_hypotheses(
         coarse_scene = scene[rng.permutation(len(scene))[:coarse_points]]
         for i in start_ids:
             icp = icp_point_to_plane(
-                surface, coarse_scene, ordered[i].matrix, max_distance=gate, max_iterations=6
-            )
+                surface, coarse_scene, ordered[i].matrix, max_distance=gate, max_iterations=6,
+                fused=icp_fused,
+            )  # fmt: skip
             coarse.append(
                 (score_pose(surface, coarse_scene, icp.matrix, inlier_distance)[0], i, icp.matrix)
             )
@@ -848,6 +872,7 @@ def verify_hypotheses(
                 max_distance=gate,
                 max_iterations=icp_iterations + extra_iterations,
                 stall=icp_stall,
+                fused=icp_fused,
             )
             T_new = icp.matrix
         else:
