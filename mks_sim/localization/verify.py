@@ -90,6 +90,8 @@ def find_table(
         return table, thr, np.abs(table.distance(points)) <= thr
     threshold = max(spacing, 3.0 * noise, 1e-12)
     plane, _ = fit_plane_ransac(points, threshold, rng, iterations=150, fit_points=TABLE_FIT_POINTS)
+    if _gridknn.available():
+        return _support(points, plane, threshold, spacing, viewpoint, min_fraction)
     d = plane.distance(points)
     near = np.abs(d) <= 3.0 * threshold
     band = max(threshold, 4.0 * 1.4826 * _gridknn.median(np.abs(d[near])))
@@ -114,6 +116,44 @@ def find_table(
     margin = 0.05 * (hi - lo) + 2 * spacing
     inside = np.all((uv_off > lo + margin) & (uv_off < hi - margin), axis=1)
     if inside.mean() < 0.9:
+        return None, 0.0, none
+    return plane, float(band), inl
+
+
+def _support(
+    points: FloatArray,
+    plane: Plane,
+    threshold: float,
+    spacing: float,
+    viewpoint: FloatArray | None,
+    min_fraction: float,
+) -> tuple[Plane | None, float, NDArray[np.bool_]]:
+    """:func:`find_table`'s tests of a dominant plane without ``near_z``, in two compiled
+    passes (:func:`~mks_sim.lowlevel._gridknn.plane_band`, ``footprint_inside``): the same
+    tests; the distances' rounding may differ from numpy's products."""
+    from mks_sim.lowlevel._gridknn import _load
+
+    kern = _load()
+    none = np.zeros(len(points), dtype=bool)
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    _, band, inl, off, positive = kern["plane_band"](
+        pts, np.ascontiguousarray(plane.normal, dtype=np.float64), float(plane.offset),
+        float(threshold),
+    )  # fmt: skip
+    n_off = int(np.count_nonzero(off))
+    if np.count_nonzero(inl) < min_fraction * len(pts) or n_off < 10:
+        return None, 0.0, none
+    if positive < 0.5 * n_off:
+        plane, positive = plane.flipped(), n_off - positive
+    if positive < 0.95 * n_off:
+        return None, 0.0, none
+    if viewpoint is not None and plane.distance(viewpoint[None])[0] < 0:
+        return None, 0.0, none
+    n = plane.normal
+    u = cross3(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = cross3(n, u)
+    if kern["footprint_inside"](pts, inl, off, u, w, float(spacing)) < 0.9:
         return None, 0.0, none
     return plane, float(band), inl
 

@@ -968,3 +968,68 @@ def voxel_means(points, voxel, shift):
         out[c, 1] = sums[c, 1] / counts[c]
         out[c, 2] = sums[c, 2] / counts[c]
     return out, True
+
+
+@nb.njit(cache=True)
+def plane_band(points, normal, offset, threshold):
+    """A supporting plane's band over (N, 3) points, as ``verify.find_table`` takes it:
+    signed distances ``d = p . n - offset``; the band half-width ``max(threshold, 4 x 1.4826
+    x median |d|)`` over the points within 3 thresholds; the (N,) masks of the points within
+    the band and of those beyond twice it; and how many of the latter lie on the plane's
+    positive side. Returns ``(d, band, inside, off, n_off_positive)``."""
+    n = points.shape[0]
+    d = np.empty(n)
+    near = np.empty(n)
+    k = 0
+    for i in range(n):
+        di = points[i, 0] * normal[0] + points[i, 1] * normal[1] + points[i, 2] * normal[2]
+        di -= offset
+        d[i] = di
+        if abs(di) <= 3.0 * threshold:
+            near[k] = abs(di)
+            k += 1
+    band = threshold
+    if k:
+        band = max(threshold, 4.0 * 1.4826 * np.median(near[:k]))
+    inside = np.empty(n, np.bool_)
+    off = np.empty(n, np.bool_)
+    positive = 0
+    for i in range(n):
+        a = abs(d[i])
+        inside[i] = a <= band
+        off[i] = a > 2.0 * band
+        if off[i] and d[i] > 0:
+            positive += 1
+    return d, band, inside, off, positive
+
+
+@nb.njit(cache=True)
+def footprint_inside(points, inside, off, u, w, spacing):
+    """The fraction of the ``off`` points whose projection on (u, w) lies within the
+    ``inside`` points' projected bounds shrunk by 5 % of their extent plus two spacings
+    (``verify.find_table``'s footprint test); 0 when there is none of either."""
+    n = points.shape[0]
+    lo0 = np.inf
+    lo1 = np.inf
+    hi0 = -np.inf
+    hi1 = -np.inf
+    for i in range(n):
+        if inside[i]:
+            a = points[i, 0] * u[0] + points[i, 1] * u[1] + points[i, 2] * u[2]
+            b = points[i, 0] * w[0] + points[i, 1] * w[1] + points[i, 2] * w[2]
+            lo0 = min(lo0, a)
+            hi0 = max(hi0, a)
+            lo1 = min(lo1, b)
+            hi1 = max(hi1, b)
+    m0 = 0.05 * (hi0 - lo0) + 2.0 * spacing
+    m1 = 0.05 * (hi1 - lo1) + 2.0 * spacing
+    count = 0
+    total = 0
+    for i in range(n):
+        if off[i]:
+            total += 1
+            a = points[i, 0] * u[0] + points[i, 1] * u[1] + points[i, 2] * u[2]
+            b = points[i, 0] * w[0] + points[i, 1] * w[1] + points[i, 2] * w[2]
+            if lo0 + m0 < a < hi0 - m0 and lo1 + m1 < b < hi1 - m1:
+                count += 1
+    return count / total if total and np.isfinite(lo0) else 0.0
