@@ -772,7 +772,7 @@ def localize_cloud(
             report, seg = _group_segment(
                 seg_pts, m, spacing, vp, table_plane,
                 normal_rings=2 if noise > 0.2 * spacing else 1, graph=seg_graph,
-                curvature_rings=2 if thorough else None,
+                curvature_rings=2 if thorough else None, compiled_fit=not thorough,
             )  # fmt: skip
             segments.append(SegmentReport(keep[members], report[0], report[1], report[2]))
             seg_data.append((seg_pts, seg))
@@ -1045,6 +1045,7 @@ def _group_segment(
     normal_rings: int = 1,
     graph: Any = None,
     curvature_rings: int | None = None,
+    compiled_fit: bool = False,
 ) -> tuple[tuple[tuple[PlanarRegion, ...], Vertexes, bool], Segmentation | None]:
     """Planes, vertexes and whether the segment rests on the table; ``graph``: its SPG when
     already known (else built). The regions grow from the flattest points first, flatness
@@ -1059,6 +1060,7 @@ def _group_segment(
             seg_pts, graph, viewpoint=viewpoint, seeds="all", normal_rings=normal_rings,
             curved=False,
             curvature_rings=normal_rings if curvature_rings is None else curvature_rings,
+            compiled_fit=compiled_fit,
         )  # fmt: skip
     except DataError:
         empty = Vertexes(

@@ -89,7 +89,9 @@ def find_table(
         table = Plane(plane.normal, plane.offset, rmse)
         return table, thr, np.abs(table.distance(points)) <= thr
     threshold = max(spacing, 3.0 * noise, 1e-12)
-    plane, _ = fit_plane_ransac(points, threshold, rng, iterations=150, fit_points=TABLE_FIT_POINTS)
+    plane, _ = fit_plane_ransac(
+        points, threshold, rng, iterations=150, fit_points=TABLE_FIT_POINTS, compiled_fit=True
+    )
     if _gridknn.available():
         return _support(points, plane, threshold, spacing, viewpoint, min_fraction)
     d = plane.distance(points)

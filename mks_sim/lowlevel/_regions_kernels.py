@@ -126,6 +126,65 @@ def grow_regions(
     return labels, rid
 
 
+@nb.njit(cache=True)
+def robust_plane(
+    points: np.ndarray, iterations: int
+) -> tuple[np.ndarray, float, float]:  # pragma: no cover
+    """:func:`mks_sim.lowlevel.regions.fit_plane` in one compiled call: the least-squares
+    plane of the kept points, then the points within 3 robust sigmas (1.4826 x the median
+    residual) kept, until the kept set stops changing, ``iterations`` fits at most. The
+    same steps; the sums' order and the eigen-solver's rounding may differ from numpy's.
+    Returns ``(normal, offset, rms residual of the kept points)``."""
+    n = points.shape[0]
+    keep = np.empty(n, np.int64)
+    for i in range(n):
+        keep[i] = i
+    count = n
+    normal = np.array([0.0, 0.0, 1.0])
+    offset = 0.0
+    r = np.empty(n)
+    buf = np.empty(n)
+    new = np.empty(n, np.int64)
+    for _ in range(max(1, iterations)):
+        c0, c1, c2, a00, a01, a02, a11, a12, a22 = _scatter(points, keep, count)
+        cov = np.array([[a00, a01, a02], [a01, a11, a12], [a02, a12, a22]])
+        _, vec = np.linalg.eigh(cov)
+        normal = np.array([vec[0, 0], vec[1, 0], vec[2, 0]])
+        offset = normal[0] * c0 + normal[1] * c1 + normal[2] * c2
+        for i in range(n):
+            r[i] = abs(
+                points[i, 0] * normal[0]
+                + points[i, 1] * normal[1]
+                + points[i, 2] * normal[2]
+                - offset
+            )
+        for k in range(count):
+            buf[k] = r[keep[k]]
+        limit = max(3.0 * (1.4826 * np.median(buf[:count])), 1e-12)
+        m = 0
+        same = True
+        k = 0
+        for i in range(n):
+            if r[i] <= limit:
+                new[m] = i
+                m += 1
+                if k >= count or keep[k] != i:
+                    same = False
+                k += 1
+        if m != count:
+            same = False
+        if m < 3 or same:
+            break
+        keep[:m] = new[:m]
+        count = m
+    ss = 0.0
+    for k in range(count):
+        q = keep[k]
+        e = points[q, 0] * normal[0] + points[q, 1] * normal[1] + points[q, 2] * normal[2] - offset
+        ss += e * e
+    return normal, offset, np.sqrt(ss / count)
+
+
 #: Fewest points per work item of :func:`ring_moments`; there are at most 4 items per
 #: thread, each with its own (N,) scratch arrays.
 _RING_CHUNK = 512

@@ -144,17 +144,26 @@ def median_spacing(graph: GraphLike) -> float:
     return _median(data) if data.size else 0.0
 
 
-def fit_plane(points: ArrayLike, iterations: int = 3) -> Plane:
+def fit_plane(points: ArrayLike, iterations: int = 3, *, compiled: bool = False) -> Plane:
     """Least-squares plane with iterative outlier rejection (residual > 3 robust sigmas).
 
     Args:
         points: (N >= 3, 3) points.
         iterations: re-fits after rejecting outliers.
+        compiled: the same steps in one compiled call when numba imports
+            (:func:`mks_sim.lowlevel._regions_kernels.robust_plane`; the sums' order and
+            the eigen-solver's rounding may differ: ``localize_cloud`` asks for it, the
+            workstation's planes stay numpy's to the bit).
 
     Returns:
         :class:`Plane` (normal sign arbitrary) with the RMS residual of the kept points.
     """
     pts = as_points(points, "fit_plane: points", min_points=3)
+    if compiled and _gridknn.available():
+        from mks_sim.lowlevel._regions_kernels import robust_plane
+
+        normal_c, offset_c, rmse_c = robust_plane(np.ascontiguousarray(pts), int(iterations))
+        return Plane(normal_c, float(offset_c), float(rmse_c))
     # (Moments by products over a 0/1 weight on the (3, N) transpose took the 13,000 table
     # points 3.0 -> 1.4 ms, the same planes to rounding; that rounding flipped the suite's
     # replay of a bin push, a knife-edge, so the row gathers stay. The median is exact.)
@@ -189,6 +198,7 @@ def fit_plane_ransac(
     rng: np.random.Generator,
     iterations: int = 200,
     fit_points: int | None = None,
+    compiled_fit: bool = False,
 ) -> tuple[Plane, NDArray[np.bool_]]:
     """RANSAC plane (3-point samples) refined by :func:`fit_plane` on its inliers.
 
@@ -199,6 +209,7 @@ def fit_plane_ransac(
         iterations: RANSAC samples.
         fit_points: the refinement fits at most this many of the best candidate's inliers
             (every k-th; None: all of them).
+        compiled_fit: ``compiled`` of that :func:`fit_plane`.
 
     Returns:
         ``(plane, inliers)`` with (N,) bool inlier mask of the refined plane.
@@ -235,7 +246,7 @@ def fit_plane_ransac(
     else:
         fit = np.compress(inliers, pts, axis=0)
     plane = (
-        fit_plane(fit)
+        fit_plane(fit, compiled=compiled_fit)
         if inliers.sum() >= 3
         else Plane(nrm[best], float(off[best]))
     )
@@ -427,12 +438,14 @@ def grow_planar_regions(
     angle_deg: float,
     distance: float,
     min_points: int,
+    compiled_fit: bool = False,
 ) -> tuple[IntArray, list[PlanarRegion]]:
     """Grow planar regions over the SPG breadth-first from seeds in ``order``.
 
     A neighbour joins the region when its normal is within ``angle_deg`` of the region's plane
     normal (sign ignored) and it lies within ``distance`` of the plane; the plane is refitted
-    each time the region doubles. Regions smaller than ``min_points`` are dissolved.
+    each time the region doubles. Regions smaller than ``min_points`` are dissolved. The
+    final planes are :func:`fit_plane`'s (``compiled_fit``: its compiled steps).
 
     Returns:
         ``(labels, regions)``: (N,) region index or -1, and the regions (largest first).
@@ -452,7 +465,7 @@ def grow_planar_regions(
     planes = []
     for rid, members in enumerate(members_list):
         final[members] = rid
-        pl = fit_plane(points[members])
+        pl = fit_plane(points[members], compiled=compiled_fit)
         planes.append(pl.flipped() if pl.normal @ column_mean(normals[members]) < 0 else pl)
     _absorb_boundary(points, graph, final, planes, distance / 2)
     regions = []
@@ -542,6 +555,7 @@ def segment_surfaces(
     surface_normals: SurfaceNormals | None = None,
     curved: bool = True,
     curvature_rings: int = 2,
+    compiled_fit: bool = False,
 ) -> Segmentation:
     """Group a cloud on its SPG into planar regions and curved regions (sections 2.2, 4.1).
 
@@ -565,6 +579,9 @@ def segment_surfaces(
             once); ``viewpoint`` and ``normal_rings`` are then unused.
         curved: also group the curved points and fit each group's sphere (False: no curved
             regions; the planar ones do not depend on them).
+        curvature_rings: SPG rings of the flatness that orders the seeds
+            (:func:`estimate_normals`; equal to ``normal_rings``: no second pass).
+        compiled_fit: the regions' planes by the compiled fit (:func:`fit_plane`).
 
     Returns:
         :class:`Segmentation`.
@@ -595,6 +612,7 @@ def segment_surfaces(
         angle_deg=angle_deg,
         distance=dist,
         min_points=min_points,
+        compiled_fit=compiled_fit,
     )
     regions = _curved_regions(pts, graph, (codes > 0) & (labels < 0), min_points) if curved else []
     log.debug("segment_surfaces: %d planar, %d curved regions", len(planes), len(regions))
