@@ -443,3 +443,54 @@ def test_one_spg_gives_the_components_and_the_segments_graphs() -> None:
             assert np.array_equal(sub.indices, own.indices)
             assert np.array_equal(sub.data, own.data)
     assert n_cut >= 100  # rows the threshold cut were among those answered
+
+
+def test_plane_pair_poses_compiled_as_by_numpy() -> None:
+    """``plane_pair_hypotheses(compiled=True)``: the same poses, in the same order, as the
+    numpy pass (within 1e-12), from pairs of the part's own faces seen under random poses
+    (with and without their points, the table's case), and the true pose among them."""
+    from mks_sim.localization.hypotheses import _plane_pair_poses, plane_pair_hypotheses
+    from mks_sim.lowlevel import _gridknn
+    from mks_sim.lowlevel.regions import Plane
+
+    if not _gridknn.available():
+        pytest.skip("needs numba")
+    from mks_sim.models._refine_kernels import plane_pair_poses
+
+    model = PolyhedralModel.from_mesh(industrial_part_mesh(), "part")
+    model.surface.with_lookup()
+    extremes, offsets = model.face_extremes
+    pa, pb, pcos, pframes = model.face_pairs
+    rng = np.random.default_rng(12)
+    cos_tol, slack = float(np.sin(np.radians(8.0))), 0.002
+    n_poses = 0
+    for _ in range(8):
+        T = make_transform(random_rotation(rng), rng.normal(0, 0.1, 3))
+        faces = [model.faces[i] for i in rng.choice(len(model.faces), 4, replace=False)]
+        planes = []
+        for k, face in enumerate(faces):
+            n = T[:3, :3] @ face.normal
+            pts = face.points @ T[:3, :3].T + T[:3, 3] + rng.normal(0, 2e-4, face.points.shape)
+            planes.append((Plane(n, float(n @ T[:3, 3] + face.offset)), None if k == 3 else pts))
+        numpy_poses = _plane_pair_poses(planes, extremes, offsets, model.face_pairs, cos_tol, slack)
+        sampled = np.array([p is not None for _, p in planes])
+        chunks = [np.zeros((0, 3)) if p is None else p for _, p in planes]
+        starts = np.concatenate([[0], np.cumsum([len(c) for c in chunks])]).astype(np.int64)
+        compiled_poses = plane_pair_poses(
+            np.array([P.normal for P, _ in planes]), np.array([P.offset for P, _ in planes]),
+            starts, sampled, np.ascontiguousarray(np.concatenate(chunks)),
+            np.ascontiguousarray(extremes), offsets, pa.astype(np.int64), pb.astype(np.int64),
+            pcos, np.ascontiguousarray(pframes), cos_tol, slack,
+        )  # fmt: skip
+        assert len(compiled_poses) == len(numpy_poses)
+        if numpy_poses:
+            assert np.abs(compiled_poses - np.stack(numpy_poses)).max() < 1e-12
+        n_poses += len(numpy_poses)
+        scene = np.concatenate([p for _, p in planes if p is not None])
+        for compiled in (False, True):
+            hyps = plane_pair_hypotheses(
+                model, planes, scene, inlier_distance=0.001, keep=1000, compiled=compiled
+            )
+            best = min(pose_error(h.matrix, T) for h in hyps)
+            assert best[0] < 0.002 and best[1] < 1.0, best
+    assert n_poses > 100

@@ -30,6 +30,7 @@ from mks_sim.errors import DataError, MksError
 from mks_sim.geometry.keypoints import unique_cells
 from mks_sim.geometry.points import fibonacci_sphere
 from mks_sim.geometry.transforms import cross3, make_transform, rotation_from_covariance
+from mks_sim.lowlevel import _gridknn
 from mks_sim.lowlevel._gridknn import column_mean
 from mks_sim.lowlevel.grouping import Vertexes
 from mks_sim.lowlevel.regions import Plane
@@ -625,6 +626,7 @@ def plane_pair_hypotheses(
     inlier_distance: float,
     max_angle_deg: float = 8.0,
     keep: int = 40,
+    compiled: bool = False,
 ) -> list[PoseHypothesis]:
     """Pose hypotheses from pairs of detected planes matched to pairs of model faces.
 
@@ -641,13 +643,61 @@ def plane_pair_hypotheses(
         inlier_distance: ranking inlier distance.
         max_angle_deg: tolerance on the angle between the two normals.
         keep: hypotheses returned (best quick inlier fraction first).
+        compiled: the poses in one compiled pass when numba imports
+            (:func:`mks_sim.models._refine_kernels.plane_pair_poses`: the same tests, in the
+            same order; the rounding of the products may differ: ``localize_cloud`` asks for
+            it, the workstation keeps numpy's).
     """
     sub = scene_points[:: max(1, len(scene_points) // 80)]
     extremes, offsets = model.face_extremes
     pa, pb, pcos, pframes = model.face_pairs
-    out: list[tuple[float, FloatArray]] = []
     cos_tol = np.sin(np.radians(max_angle_deg))
     slack = 4 * inlier_distance
+    if compiled and planes and len(pa) and _gridknn.available():
+        from mks_sim.models._refine_kernels import plane_pair_poses
+
+        sampled = np.array([pts is not None for _, pts in planes], dtype=bool)
+        chunks = [np.zeros((0, 3)) if p is None else np.asarray(p, np.float64) for _, p in planes]
+        starts = np.zeros(len(planes) + 1, dtype=np.int64)
+        np.cumsum([len(c) for c in chunks], out=starts[1:])
+        Ts = plane_pair_poses(
+            np.array([P.normal for P, _ in planes], dtype=np.float64),
+            np.array([P.offset for P, _ in planes], dtype=np.float64),
+            starts, sampled, np.ascontiguousarray(np.concatenate(chunks)),
+            np.ascontiguousarray(extremes), offsets, np.asarray(pa, np.int64),
+            np.asarray(pb, np.int64), np.asarray(pcos, np.float64),
+            np.ascontiguousarray(pframes, dtype=np.float64), float(cos_tol), float(slack),
+        )  # fmt: skip
+        out = [(0.0, T) for T in Ts]
+    else:
+        poses = _plane_pair_poses(planes, extremes, offsets, model.face_pairs, cos_tol, slack)
+        out = [(0.0, T) for T in poses]
+    if out:
+        quick = batch_inlier_fractions(
+            model.surface, sub, np.stack([o[1] for o in out]), inlier_distance
+        )
+        out = [(float(q), o[1]) for q, o in zip(quick, out)]
+    out.sort(key=lambda o: -o[0])
+    ref = model.vertexes.mean(axis=0)
+    top = [T for _, T in out[:keep]]
+    if not top:
+        return []
+    refs = np.stack([T[:3, :3] @ ref + T[:3, 3] for T in top])  # (each as before)
+    none = np.zeros((0, 2), dtype=np.int64)
+    return PoseHypothesis.many(np.stack(top), refs, [0] * len(top), [none] * len(top))
+
+
+def _plane_pair_poses(
+    planes: Sequence[tuple[Plane, FloatArray | None]],
+    extremes: FloatArray,
+    offsets: FloatArray,
+    face_pairs: tuple[NDArray[np.intp], NDArray[np.intp], FloatArray, FloatArray],
+    cos_tol: float,
+    slack: float,
+) -> list[FloatArray]:
+    """The poses of :func:`plane_pair_hypotheses` by numpy, pair by pair."""
+    pa, pb, pcos, pframes = face_pairs
+    out: list[FloatArray] = []
     for (P, p_pts), (Q, q_pts) in itertools.permutations(planes, 2):
         if p_pts is None:
             continue
@@ -693,20 +743,8 @@ def plane_pair_hypotheses(
         Ts[:, :3, :3] = Rs[idx]
         Ts[:, :3, 3] = t[idx]
         Ts[:, 3, 3] = 1.0
-        out.extend((0.0, T) for T in Ts)
-    if out:
-        quick = batch_inlier_fractions(
-            model.surface, sub, np.stack([o[1] for o in out]), inlier_distance
-        )
-        out = [(float(q), o[1]) for q, o in zip(quick, out)]
-    out.sort(key=lambda o: -o[0])
-    ref = model.vertexes.mean(axis=0)
-    top = [T for _, T in out[:keep]]
-    if not top:
-        return []
-    refs = np.stack([T[:3, :3] @ ref + T[:3, 3] for T in top])  # (each as before)
-    none = np.zeros((0, 2), dtype=np.int64)
-    return PoseHypothesis.many(np.stack(top), refs, [0] * len(top), [none] * len(top))
+        out.extend(Ts)
+    return out
 
 
 def _rotinv_hypotheses(

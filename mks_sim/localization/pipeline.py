@@ -407,6 +407,7 @@ def _segment_verified(
     surface: ModelSurface,
     symmetries: Any,
     more: Callable[[], list[PoseHypothesis]] | None = None,
+    compiled_pairs: bool = False,
 ) -> tuple[list[tuple[PoseHypothesis, Any]], float, float]:
     """One segment's verification: the hypotheses refined and scored; when the best scores
     under ``min_score``, ``more()`` hypotheses (when given) refined too, and then, when the
@@ -415,7 +416,8 @@ def _segment_verified(
     (free-form), ICP also from the best's half turns about the model's principal axes
     (:func:`~mks_sim.models.refine.principal_half_turns`), merged; every score multiplied by
     the coverage of the model's surface (its fixed sampling within ``cover_distance`` of a
-    segment point, over :data:`VISIBLE_FRACTION`; density independent).
+    segment point, over :data:`VISIBLE_FRACTION`; density independent). ``compiled_pairs``:
+    the plane pairs' poses in one compiled pass (``plane_pair_hypotheses(compiled=True)``).
 
     Returns:
         ((hypothesis with the coverage-weighted score, its VerifiedHypothesis) pairs,
@@ -453,7 +455,9 @@ def _segment_verified(
         coarse: list[PoseHypothesis] = []
         if pairs:
             try:
-                coarse = plane_pair_hypotheses(model, pairs, seg_pts, inlier_distance=inlier)
+                coarse = plane_pair_hypotheses(
+                    model, pairs, seg_pts, inlier_distance=inlier, compiled=compiled_pairs
+                )
             except DataError as exc:
                 log.info("plane-pair hypotheses failed: %s", exc)
         t_hyp += time.perf_counter() - t
@@ -817,6 +821,7 @@ def localize_cloud(
             surface=surface,
             symmetries=syms,
             more=more,
+            compiled_pairs=not thorough,
         )
         t_match += dt_h
         t_refine += dt_v

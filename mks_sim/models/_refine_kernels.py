@@ -10,6 +10,8 @@ machine code from ``__pycache__``.
 
 from __future__ import annotations
 
+import math
+
 import numba as nb
 import numpy as np
 
@@ -295,3 +297,166 @@ def icp_lookup_loop(
             if rmse > (1.0 - stall_gain) * history[n_hist - 1 - stall]:
                 break
     return S, rmse, it, converged
+
+
+@nb.njit(cache=True)
+def plane_pair_poses(
+    normals: np.ndarray,
+    offsets: np.ndarray,
+    starts: np.ndarray,
+    sampled: np.ndarray,
+    points: np.ndarray,
+    extremes: np.ndarray,
+    face_offsets: np.ndarray,
+    pa: np.ndarray,
+    pb: np.ndarray,
+    pcos: np.ndarray,
+    pframes: np.ndarray,
+    cos_tol: float,
+    slack: float,
+) -> np.ndarray:  # pragma: no cover
+    """(K, 4, 4) the poses of :func:`mks_sim.localization.hypotheses.plane_pair_hypotheses`
+    in one compiled pass, pairs in its order: detected planes (L,) ``normals`` and
+    ``offsets``, plane l's points ``points[starts[l]:starts[l + 1]]`` when ``sampled[l]``;
+    the model's face extremes and offsets and its face pairs (``pa``, ``pb``, cosines,
+    frames). The same tests and solve; the rounding of the products may differ."""
+    n_planes = normals.shape[0]
+    n_pairs = pa.shape[0]
+    n_ext = extremes.shape[1]
+    out = np.empty((n_planes * n_planes * n_pairs, 4, 4))
+    count = 0
+    e = np.empty(3)
+    f = np.empty(3)
+    g = np.empty(3)
+    v = np.empty(3)
+    for a in range(n_planes):
+        if not sampled[a]:
+            continue
+        for b in range(n_planes):
+            if b == a:
+                continue
+            P0, P1, P2 = normals[a, 0], normals[a, 1], normals[a, 2]
+            Q0, Q1, Q2 = normals[b, 0], normals[b, 1], normals[b, 2]
+            cpq = P0 * Q0 + P1 * Q1 + P2 * Q2
+            if abs(cpq) > 0.9:
+                continue
+            # the frame: e1 = P / |P|, e3 = P x Q / |P x Q|, e2 = e3 x e1
+            np_ = math.sqrt(P0 * P0 + P1 * P1 + P2 * P2)
+            e10, e11, e12 = P0 / np_, P1 / np_, P2 / np_
+            c0 = P1 * Q2 - P2 * Q1
+            c1 = P2 * Q0 - P0 * Q2
+            c2 = P0 * Q1 - P1 * Q0
+            nc = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+            if nc < 1e-9:
+                continue
+            e[0], e[1], e[2] = c0 / nc, c1 / nc, c2 / nc
+            f[0] = e[1] * e12 - e[2] * e11
+            f[1] = e[2] * e10 - e[0] * e12
+            f[2] = e[0] * e11 - e[1] * e10
+            frame = np.empty((3, 3))
+            for i in range(3):
+                frame[i, 0] = (e10, e11, e12)[i]
+                frame[i, 1] = f[i]
+                frame[i, 2] = e[i]
+            # the plane's observed extents along e and f
+            lo_e, hi_e, lo_f, hi_f = np.inf, -np.inf, np.inf, -np.inf
+            for r in range(starts[a], starts[a + 1]):
+                pe = points[r, 0] * e[0] + points[r, 1] * e[1] + points[r, 2] * e[2]
+                pf = points[r, 0] * f[0] + points[r, 1] * f[1] + points[r, 2] * f[2]
+                lo_e, hi_e = min(lo_e, pe), max(hi_e, pe)
+                lo_f, hi_f = min(lo_f, pf), max(hi_f, pf)
+            if sampled[b]:
+                g[0] = Q1 * e[2] - Q2 * e[1]
+                g[1] = Q2 * e[0] - Q0 * e[2]
+                g[2] = Q0 * e[1] - Q1 * e[0]
+                lo_qe, hi_qe, lo_qg, hi_qg = np.inf, -np.inf, np.inf, -np.inf
+                for r in range(starts[b], starts[b + 1]):
+                    qe = points[r, 0] * e[0] + points[r, 1] * e[1] + points[r, 2] * e[2]
+                    qg = points[r, 0] * g[0] + points[r, 1] * g[1] + points[r, 2] * g[2]
+                    lo_qe, hi_qe = min(lo_qe, qe), max(hi_qe, qe)
+                    lo_qg, hi_qg = min(lo_qg, qg), max(hi_qg, qg)
+            # lhs = [P; Q; e] and its inverse (the adjugate over the determinant)
+            m00, m01, m02 = P0, P1, P2
+            m10, m11, m12 = Q0, Q1, Q2
+            m20, m21, m22 = e[0], e[1], e[2]
+            det = (
+                m00 * (m11 * m22 - m12 * m21)
+                - m01 * (m10 * m22 - m12 * m20)
+                + m02 * (m10 * m21 - m11 * m20)
+            )
+            if not abs(det) > 1e-12:
+                continue
+            inv = np.empty((3, 3))
+            inv[0, 0] = (m11 * m22 - m12 * m21) / det
+            inv[0, 1] = (m02 * m21 - m01 * m22) / det
+            inv[0, 2] = (m01 * m12 - m02 * m11) / det
+            inv[1, 0] = (m12 * m20 - m10 * m22) / det
+            inv[1, 1] = (m00 * m22 - m02 * m20) / det
+            inv[1, 2] = (m02 * m10 - m00 * m12) / det
+            inv[2, 0] = (m10 * m21 - m11 * m20) / det
+            inv[2, 1] = (m01 * m20 - m00 * m21) / det
+            inv[2, 2] = (m00 * m11 - m01 * m10) / det
+            mid_s = (hi_e + lo_e) / 2
+            for k in range(n_pairs):
+                if not abs(pcos[k] - cpq) <= cos_tol:
+                    continue
+                R = frame @ pframes[k].T
+                # R^T e, R^T f (and R^T g): the scene directions in the model frame
+                fa = pa[k]
+                lo_ae, hi_ae, lo_af, hi_af = np.inf, -np.inf, np.inf, -np.inf
+                for u in range(3):
+                    v[u] = R[0, u] * e[0] + R[1, u] * e[1] + R[2, u] * e[2]
+                rf0 = R[0, 0] * f[0] + R[1, 0] * f[1] + R[2, 0] * f[2]
+                rf1 = R[0, 1] * f[0] + R[1, 1] * f[1] + R[2, 1] * f[2]
+                rf2 = R[0, 2] * f[0] + R[1, 2] * f[1] + R[2, 2] * f[2]
+                for p in range(n_ext):
+                    x = extremes[fa, p, 0]
+                    y = extremes[fa, p, 1]
+                    z = extremes[fa, p, 2]
+                    ae = x * v[0] + y * v[1] + z * v[2]
+                    af = x * rf0 + y * rf1 + z * rf2
+                    lo_ae, hi_ae = min(lo_ae, ae), max(hi_ae, ae)
+                    lo_af, hi_af = min(lo_af, af), max(hi_af, af)
+                if not (
+                    hi_e - lo_e <= hi_ae - lo_ae + slack and hi_f - lo_f <= hi_af - lo_af + slack
+                ):
+                    continue
+                if sampled[b]:
+                    fb = pb[k]
+                    rg0 = R[0, 0] * g[0] + R[1, 0] * g[1] + R[2, 0] * g[2]
+                    rg1 = R[0, 1] * g[0] + R[1, 1] * g[1] + R[2, 1] * g[2]
+                    rg2 = R[0, 2] * g[0] + R[1, 2] * g[1] + R[2, 2] * g[2]
+                    lo_be, hi_be, lo_bg, hi_bg = np.inf, -np.inf, np.inf, -np.inf
+                    for p in range(n_ext):
+                        x = extremes[fb, p, 0]
+                        y = extremes[fb, p, 1]
+                        z = extremes[fb, p, 2]
+                        be = x * v[0] + y * v[1] + z * v[2]
+                        bg = x * rg0 + y * rg1 + z * rg2
+                        lo_be, hi_be = min(lo_be, be), max(hi_be, be)
+                        lo_bg, hi_bg = min(lo_bg, bg), max(hi_bg, bg)
+                    if not (
+                        hi_qe - lo_qe <= hi_be - lo_be + slack
+                        and hi_qg - lo_qg <= hi_bg - lo_bg + slack
+                    ):
+                        continue
+                mid_m = (hi_ae + lo_ae) / 2
+                r0 = offsets[a] - face_offsets[pa[k]]
+                r1 = offsets[b] - face_offsets[pb[k]]
+                r2 = mid_s - mid_m
+                t0 = r0 * inv[0, 0] + r1 * inv[0, 1] + r2 * inv[0, 2]
+                t1 = r0 * inv[1, 0] + r1 * inv[1, 1] + r2 * inv[1, 2]
+                t2 = r0 * inv[2, 0] + r1 * inv[2, 1] + r2 * inv[2, 2]
+                if not (np.isfinite(t0) and np.isfinite(t1) and np.isfinite(t2)):
+                    continue
+                if not np.all(np.isfinite(R)):
+                    continue
+                T = out[count]
+                T[:] = 0.0
+                T[:3, :3] = R
+                T[0, 3] = t0
+                T[1, 3] = t1
+                T[2, 3] = t2
+                T[3, 3] = 1.0
+                count += 1
+    return out[:count].copy()
