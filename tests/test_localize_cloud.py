@@ -494,3 +494,55 @@ def test_plane_pair_poses_compiled_as_by_numpy() -> None:
             best = min(pose_error(h.matrix, T) for h in hyps)
             assert best[0] < 0.002 and best[1] < 1.0, best
     assert n_poses > 100
+
+
+def test_vertex_hypotheses_compiled_as_by_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``vertex_hypotheses(compiled=True)``: the same hypotheses in the same order (votes,
+    corner correspondences, matrices within 1e-12) as the numpy pass, on the vertexes the
+    grouping finds in one-sided scans of the part and the cube; and the compiled Kabsch
+    step is ``rotation_from_covariance`` (reflections included) within 1e-10."""
+    import mks_sim.localization.pipeline as pipe
+    from mks_sim.geometry.transforms import rotation_from_covariance
+    from mks_sim.localization.hypotheses import vertex_hypotheses
+    from mks_sim.lowlevel import _gridknn
+
+    if not _gridknn.available():
+        pytest.skip("needs numba")
+    from mks_sim.models._refine_kernels import _kabsch3
+
+    rng = np.random.default_rng(13)
+    R, X, Y = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    for k in range(3000):
+        H = rng.normal(size=(3, 3)) * 10.0 ** rng.uniform(-3, 3)
+        if k % 2:  # near a rotation (or its mirror): the matcher's case
+            Q = random_rotation(rng) * (1 if k % 4 == 1 else -1)
+            H = Q @ np.diag(rng.uniform(0.2, 2.0, 3))
+        _kabsch3(H, X, Y, R)
+        assert np.abs(R - rotation_from_covariance(H)).max() < 1e-10, k
+    seen: list[tuple] = []
+    real = pipe.vertex_hypotheses
+
+    def both(model, detected, pts, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append((model, detected, pts, kwargs))
+        return real(model, detected, pts, **kwargs)
+
+    monkeypatch.setattr(pipe, "vertex_hypotheses", both)
+    model, _, eye, pts = _part_view()
+    localize_cloud(model, pts, viewpoint=eye)
+    cube = PolyhedralModel.from_mesh(box_mesh(0.05), "cube")
+    T = make_transform(_rot_z(0.4), [0.01, -0.02, 0.025])
+    localize_cloud(cube, _table_scan(box_mesh(0.05), T, EYES[0], rng), viewpoint=EYES[0])
+    n_hyps = 0
+    for model, detected, pts, kwargs in seen:
+        if kwargs.get("corners") is False or len(detected) == 0:
+            continue
+        kwargs = {k: v for k, v in kwargs.items() if k != "compiled"}
+        a = vertex_hypotheses(model, detected, pts, **kwargs, compiled=False)
+        b = vertex_hypotheses(model, detected, pts, **kwargs, compiled=True)
+        assert len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            assert x.votes == y.votes
+            assert np.array_equal(np.asarray(x.correspondences), np.asarray(y.correspondences))
+            assert np.abs(x.matrix - y.matrix).max() < 1e-12
+        n_hyps += len(a)
+    assert n_hyps > 20

@@ -479,6 +479,7 @@ def vertex_hypotheses(
     keep: int = 100,
     rotinv: bool = True,
     corners: bool = True,
+    compiled: bool = False,
 ) -> list[PoseHypothesis]:
     """Pose hypotheses from matching detected vertexes (with face normals) to model corners.
 
@@ -493,6 +494,10 @@ def vertex_hypotheses(
             on its model's logical sensor instead).
         corners: the hypotheses of each vertex's face normals matched to the model's
             corners (False with ``rotinv``: the rotation-invariant Hough's alone).
+        compiled: those corner hypotheses in one compiled pass when numba imports
+            (:func:`mks_sim.models._refine_kernels.vertex_poses`: the same tests in the same
+            order; the SVD's and the products' rounding may differ: ``localize_cloud`` asks
+            for it, the workstation keeps numpy's).
 
     Returns:
         At most ``keep`` hypotheses, most voted first (ties: better quick inlier fraction).
@@ -505,7 +510,19 @@ def vertex_hypotheses(
     c_point, c_normals = model.corner_triples  # (K, 3), (K, 3, 3): every ordered triple
     c_gram = np.einsum("kij,klj->kil", c_normals, c_normals)  # (K, 3, 3)
     cos_max = np.cos(np.radians(max_angle_deg))
-    for di in range(len(detected) if corners else 0):
+    fast = corners and compiled and _gridknn.available()
+    if fast:
+        from mks_sim.models._refine_kernels import vertex_poses
+
+        votes_c, mats_c, match_c = vertex_poses(
+            np.ascontiguousarray(detected.points, dtype=np.float64),
+            np.ascontiguousarray(detected.normals, dtype=np.float64),
+            np.ascontiguousarray(c_point), np.ascontiguousarray(c_normals),
+            np.ascontiguousarray(c_gram), np.ascontiguousarray(cpts, dtype=np.float64),
+            float(cos_max), float(vote_distance),
+        )  # fmt: skip
+        out.extend(zip(votes_c.tolist(), mats_c, match_c, strict=True))
+    for di in range(len(detected) if corners and not fast else 0):
         Nd = detected.normals[di]
         sel = np.flatnonzero(np.abs(c_gram - Nd @ Nd.T).max(axis=(1, 2)) <= 0.35)
         if sel.size == 0:

@@ -796,8 +796,9 @@ def localize_cloud(
         if polyhedral:
             vote = 4 * spacing
             hyps = vertex_hypotheses(
-                loc_model, rep.vertexes, seg_pts, vote_distance=vote, rotinv=thorough
-            )
+                loc_model, rep.vertexes, seg_pts, vote_distance=vote, rotinv=thorough,
+                compiled=not thorough,
+            )  # fmt: skip
             if not thorough and len(rep.vertexes) >= 3:  # the rotation-invariant Hough's
                 more = functools.partial(
                     vertex_hypotheses, loc_model, rep.vertexes, seg_pts,

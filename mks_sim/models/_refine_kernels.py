@@ -460,3 +460,211 @@ def plane_pair_poses(
                 T[3, 3] = 1.0
                 count += 1
     return out[:count].copy()
+
+
+@nb.njit(cache=True)
+def _det3(X: np.ndarray) -> float:  # pragma: no cover
+    return (
+        X[0, 0] * (X[1, 1] * X[2, 2] - X[1, 2] * X[2, 1])
+        - X[0, 1] * (X[1, 0] * X[2, 2] - X[1, 2] * X[2, 0])
+        + X[0, 2] * (X[1, 0] * X[2, 1] - X[1, 1] * X[2, 0])
+    )
+
+
+@nb.njit(cache=True)
+def _kabsch3(
+    H: np.ndarray, X: np.ndarray, Y: np.ndarray, R: np.ndarray
+) -> None:  # pragma: no cover
+    """R <- the proper rotation maximising trace(R H) of a 3x3 ``H``
+    (``geometry.transforms.rotation_from_covariance``), without LAPACK: H's orthogonal
+    polar factor Q by Newton's iteration ``X <- (X + X^-T) / 2`` (H = U S V^T, Q = U V^T);
+    R = Q^T when det H > 0; else R = (I - 2 v v^T) Q^T = V diag(1, 1, -1) U^T, v the
+    eigenvector of P = Q^T H = V S V^T of its smallest eigenvalue (the reflection guard).
+    A singular H, or a P whose two smallest eigenvalues (nearly) coincide, goes to the
+    SVD. ``X``, ``Y``: 3x3 scratch."""
+    scale = 0.0
+    for i in range(3):
+        for j in range(3):
+            scale += H[i, j] * H[i, j]
+            X[i, j] = H[i, j]
+    det_h = _det3(H)
+    if abs(det_h) > 1e-6 * scale**1.5:
+        for _ in range(60):
+            d = _det3(X)
+            # X^-T = cofactor(X) / det
+            Y[0, 0] = (X[1, 1] * X[2, 2] - X[1, 2] * X[2, 1]) / d
+            Y[0, 1] = (X[1, 2] * X[2, 0] - X[1, 0] * X[2, 2]) / d
+            Y[0, 2] = (X[1, 0] * X[2, 1] - X[1, 1] * X[2, 0]) / d
+            Y[1, 0] = (X[0, 2] * X[2, 1] - X[0, 1] * X[2, 2]) / d
+            Y[1, 1] = (X[0, 0] * X[2, 2] - X[0, 2] * X[2, 0]) / d
+            Y[1, 2] = (X[0, 1] * X[2, 0] - X[0, 0] * X[2, 1]) / d
+            Y[2, 0] = (X[0, 1] * X[1, 2] - X[0, 2] * X[1, 1]) / d
+            Y[2, 1] = (X[0, 2] * X[1, 0] - X[0, 0] * X[1, 2]) / d
+            Y[2, 2] = (X[0, 0] * X[1, 1] - X[0, 1] * X[1, 0]) / d
+            # scaled Newton (det-scaling) while far, plain near the limit
+            g = abs(d) ** (-1.0 / 3.0)
+            change = 0.0
+            for i in range(3):
+                for j in range(3):
+                    v = 0.5 * (g * X[i, j] + Y[i, j] / g)
+                    change = max(change, abs(v - X[i, j]))
+                    X[i, j] = v
+            if change < 1e-14:
+                break
+        if det_h > 0:
+            for i in range(3):
+                for j in range(3):
+                    R[i, j] = X[j, i]
+            return
+        # P = Q^T H (symmetric): its smallest eigenvalue by the trigonometric solution
+        p00 = X[0, 0] * H[0, 0] + X[1, 0] * H[1, 0] + X[2, 0] * H[2, 0]
+        p01 = X[0, 0] * H[0, 1] + X[1, 0] * H[1, 1] + X[2, 0] * H[2, 1]
+        p02 = X[0, 0] * H[0, 2] + X[1, 0] * H[1, 2] + X[2, 0] * H[2, 2]
+        p11 = X[0, 1] * H[0, 1] + X[1, 1] * H[1, 1] + X[2, 1] * H[2, 1]
+        p12 = X[0, 1] * H[0, 2] + X[1, 1] * H[1, 2] + X[2, 1] * H[2, 2]
+        p22 = X[0, 2] * H[0, 2] + X[1, 2] * H[1, 2] + X[2, 2] * H[2, 2]
+        q = (p00 + p11 + p22) / 3.0
+        b00, b11, b22 = p00 - q, p11 - q, p22 - q
+        pp = math.sqrt(
+            (b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * (p01 * p01 + p02 * p02 + p12 * p12)) / 6.0
+        )
+        if pp > 1e-12 * (abs(q) + 1e-300):
+            det_b = (
+                b00 * (b11 * b22 - p12 * p12)
+                - p01 * (p01 * b22 - p12 * p02)
+                + p02 * (p01 * p12 - b11 * p02)
+            ) / pp**3
+            phi = math.acos(min(max(det_b / 2.0, -1.0), 1.0)) / 3.0
+            lam = q + 2.0 * pp * math.cos(phi + 2.0 * math.pi / 3.0)
+            lam_mid = q + 2.0 * pp * math.cos(phi - 2.0 * math.pi / 3.0)
+            if lam_mid - lam > 1e-6 * (abs(q) + pp):
+                r0 = (p00 - lam, p01, p02)
+                r1 = (p01, p11 - lam, p12)
+                r2 = (p02, p12, p22 - lam)
+                best = -1.0
+                v0 = v1 = v2 = 0.0
+                for u, w in ((r0, r1), (r0, r2), (r1, r2)):
+                    c0 = u[1] * w[2] - u[2] * w[1]
+                    c1 = u[2] * w[0] - u[0] * w[2]
+                    c2 = u[0] * w[1] - u[1] * w[0]
+                    nn = c0 * c0 + c1 * c1 + c2 * c2
+                    if nn > best:
+                        best, v0, v1, v2 = nn, c0, c1, c2
+                if best > 0:
+                    nv = math.sqrt(best)
+                    v0, v1, v2 = v0 / nv, v1 / nv, v2 / nv
+                    vv = (v0, v1, v2)
+                    # R = (I - 2 v v^T) Q^T
+                    for i in range(3):
+                        for j in range(3):
+                            R[i, j] = X[j, i] - 2.0 * vv[i] * (
+                                v0 * X[j, 0] + v1 * X[j, 1] + v2 * X[j, 2]
+                            )
+                    return
+    U, _, Vt = np.linalg.svd(H)
+    V = Vt.T.copy()
+    Ut = U.T.copy()
+    if np.linalg.det(V @ Ut) < 0:
+        for r in range(3):
+            V[r, 2] = -V[r, 2]
+    R[:, :] = V @ Ut
+
+
+@nb.njit(cache=True)
+def vertex_poses(
+    det_points: np.ndarray,
+    det_normals: np.ndarray,
+    c_point: np.ndarray,
+    c_normals: np.ndarray,
+    c_gram: np.ndarray,
+    corners: np.ndarray,
+    cos_max: float,
+    vote_distance: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    """The corner hypotheses of :func:`mks_sim.localization.hypotheses.vertex_hypotheses` in
+    one compiled pass, in its order: for each detected vertex (its point and three face
+    normals) and each model corner triple whose normals' Gram matrix is within 0.35 of the
+    vertex's, the Kabsch rotation of the triple's normals onto the vertex's (SVD, reflection
+    guarded), kept when every normal agrees within ``cos_max``; the translation takes the
+    corner onto the vertex; each model corner is moved and matched to the nearest detected
+    vertex strictly within ``vote_distance`` (none: the vertex count), and the votes are the
+    distinct vertexes matched. Returns ``(votes (H,), matrices (H, 4, 4), matches (H, V))``.
+    The same tests; the rotations (:func:`_kabsch3`) and the products may round
+    differently from numpy's."""
+    n_det = det_points.shape[0]
+    n_trip = c_point.shape[0]
+    n_corner = corners.shape[0]
+    votes = np.empty(n_det * n_trip, np.int64)
+    mats = np.empty((n_det * n_trip, 4, 4))
+    match = np.empty((n_det * n_trip, n_corner), np.int64)
+    seen = np.zeros(n_det + 1, np.int64)
+    G = np.empty((3, 3))
+    H = np.empty((3, 3))
+    X = np.empty((3, 3))
+    Y = np.empty((3, 3))
+    R = np.empty((3, 3))
+    count = 0
+    for di in range(n_det):
+        Nd = det_normals[di]
+        for a in range(3):
+            for b in range(3):
+                G[a, b] = Nd[a, 0] * Nd[b, 0] + Nd[a, 1] * Nd[b, 1] + Nd[a, 2] * Nd[b, 2]
+        for k in range(n_trip):
+            close = True
+            for a in range(3):
+                for b in range(3):
+                    if not abs(c_gram[k, a, b] - G[a, b]) <= 0.35:
+                        close = False
+            if not close:
+                continue
+            M = c_normals[k]
+            for a in range(3):
+                for b in range(3):
+                    H[a, b] = M[0, a] * Nd[0, b] + M[1, a] * Nd[1, b] + M[2, a] * Nd[2, b]
+            _kabsch3(H, X, Y, R)
+            worst = np.inf
+            for m in range(3):
+                c = 0.0
+                for i in range(3):
+                    c += (R[i, 0] * M[m, 0] + R[i, 1] * M[m, 1] + R[i, 2] * M[m, 2]) * Nd[m, i]
+                worst = min(worst, c)
+            if not worst >= cos_max:
+                continue
+            t0 = det_points[di, 0] - (
+                R[0, 0] * c_point[k, 0] + R[0, 1] * c_point[k, 1] + R[0, 2] * c_point[k, 2]
+            )
+            t1 = det_points[di, 1] - (
+                R[1, 0] * c_point[k, 0] + R[1, 1] * c_point[k, 1] + R[1, 2] * c_point[k, 2]
+            )
+            t2 = det_points[di, 2] - (
+                R[2, 0] * c_point[k, 0] + R[2, 1] * c_point[k, 1] + R[2, 2] * c_point[k, 2]
+            )
+            n_votes = 0
+            for v in range(n_corner):
+                x = R[0, 0] * corners[v, 0] + R[0, 1] * corners[v, 1] + R[0, 2] * corners[v, 2] + t0
+                y = R[1, 0] * corners[v, 0] + R[1, 1] * corners[v, 1] + R[1, 2] * corners[v, 2] + t1
+                z = R[2, 0] * corners[v, 0] + R[2, 1] * corners[v, 1] + R[2, 2] * corners[v, 2] + t2
+                best = n_det
+                best_d = vote_distance
+                for q in range(n_det):
+                    dx = x - det_points[q, 0]
+                    dy = y - det_points[q, 1]
+                    dz = z - det_points[q, 2]
+                    dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+                    if dist < best_d:
+                        best_d = dist
+                        best = q
+                match[count, v] = best
+                if best < n_det and seen[best] != count + 1:
+                    seen[best] = count + 1
+                    n_votes += 1
+            votes[count] = n_votes
+            T = mats[count]
+            T[:] = 0.0
+            T[:3, :3] = R
+            T[0, 3] = t0
+            T[1, 3] = t1
+            T[2, 3] = t2
+            T[3, 3] = 1.0
+            count += 1
+    return votes[:count].copy(), mats[:count].copy(), match[:count].copy()
