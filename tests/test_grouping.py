@@ -590,3 +590,32 @@ def test_compiled_smallest_eigenvectors_equal_numpys_to_the_bit(
     monkeypatch.setattr(_gridknn, "available", lambda: False)
     want_n, want_c = _smallest_eigen(cov)
     assert got_n.tobytes() == want_n.tobytes() and got_c.tobytes() == want_c.tobytes()
+
+
+def test_vertex_support_compiled_as_face_by_face(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``plane_vertexes``' support distances in one compiled pass give the vertexes of the
+    face-by-face numpy pass to the bit, on the industrial part's faces (many planes, the
+    table as an extra face) and with a region that has no points."""
+    import mks_sim.lowlevel.vertexes as vx
+    from mks_sim.geometry.meshes import industrial_part_mesh, sample_surface
+    from mks_sim.lowlevel import _gridknn
+    from mks_sim.lowlevel.regions import PlanarRegion
+
+    if not _gridknn.available():
+        pytest.skip("needs numba")
+    rng = np.random.default_rng(9)
+    pts, _ = sample_surface(industrial_part_mesh(), 6000, rng=rng)
+    pts = pts + rng.normal(0, 2e-4, pts.shape)
+    seg = segment_surfaces(pts, seeds="all")
+    assert len(seg.planes) >= 6
+    table = Plane(np.array([0.0, 0.0, -1.0]), 0.0)
+    empty = PlanarRegion(np.zeros(0, np.intp), seg.planes[0].plane, np.zeros(3))
+    for regions in (list(seg.planes), [*seg.planes, empty]):
+        runs = []
+        for compiled in (True, False):
+            monkeypatch.setattr(vx._gridknn, "available", lambda c=compiled: c)
+            runs.append(vx.plane_vertexes(regions, pts, extra_planes=[table], tolerance=0.004))
+        a, b = runs
+        assert len(a) > 4 and len(a) == len(b)
+        for name in ("points", "faces", "normals", "support"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name

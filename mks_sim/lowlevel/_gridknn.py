@@ -131,6 +131,7 @@ def _compile() -> dict[str, Any]:
         "space_any": k.space_any,
         "smallest_vectors": k.smallest_vectors,
         "voxel_means": k.voxel_means,
+        "face_support": k.face_support,
         "plane_band": k.plane_band,
         "footprint_inside": k.footprint_inside,
     }

@@ -1033,3 +1033,32 @@ def footprint_inside(points, inside, off, u, w, spacing):
             if lo0 + m0 < a < hi0 - m0 and lo1 + m1 < b < hi1 - m1:
                 count += 1
     return count / total if total and np.isfinite(lo0) else 0.0
+
+
+@nb.njit(cache=True)
+def face_support(points, ridx, rstart, cands, triples, n_regions):
+    """(C,) for each candidate vertex, the largest over its faces (those below
+    ``n_regions``) of the distance to the face's nearest point (face t's points:
+    ``points[ridx[rstart[t]:rstart[t + 1]]]``), as ``vertexes.plane_vertexes`` takes it
+    face by face: ``sqrt((dx*dx + dy*dy) + dz*dz)`` of the query minus the point, the
+    square's minimum rooted, to the bit; inf for a face without points."""
+    n = cands.shape[0]
+    worst = np.zeros(n)
+    for c in range(n):
+        w = 0.0
+        for s in range(3):
+            t = triples[c, s]
+            if t >= n_regions:
+                continue
+            best = np.inf
+            for r in range(rstart[t], rstart[t + 1]):
+                p = ridx[r]
+                dx = cands[c, 0] - points[p, 0]
+                dy = cands[c, 1] - points[p, 1]
+                dz = cands[c, 2] - points[p, 2]
+                sq = (dx * dx + dy * dy) + dz * dz
+                if sq < best:
+                    best = sq
+            w = max(w, math.sqrt(best))
+        worst[c] = w
+    return worst
