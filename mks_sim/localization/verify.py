@@ -108,10 +108,7 @@ def find_table(
     if viewpoint is not None and plane.distance(viewpoint[None])[0] < 0:
         return None, 0.0, none
     # Footprint: the objects, projected into the plane, well inside the inliers' extent.
-    n = plane.normal
-    u = cross3(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    w = cross3(n, u)
+    u, w = _in_plane_axes(plane)
     uv_in = np.compress(inl, points, axis=0) @ np.column_stack([u, w])
     uv_off = np.compress(off, points, axis=0) @ np.column_stack([u, w])
     lo, hi = _gridknn.column_bounds(uv_in)
@@ -120,6 +117,14 @@ def find_table(
     if inside.mean() < 0.9:
         return None, 0.0, none
     return plane, float(band), inl
+
+
+def _in_plane_axes(plane: Plane) -> tuple[FloatArray, FloatArray]:
+    """Two orthonormal directions in a plane (the footprint test's axes)."""
+    n = plane.normal
+    u = cross3(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    return u, cross3(n, u)
 
 
 def _support(
@@ -151,10 +156,7 @@ def _support(
         return None, 0.0, none
     if viewpoint is not None and plane.distance(viewpoint[None])[0] < 0:
         return None, 0.0, none
-    n = plane.normal
-    u = cross3(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    u /= np.linalg.norm(u)
-    w = cross3(n, u)
+    u, w = _in_plane_axes(plane)
     if kern["footprint_inside"](pts, inl, off, u, w, float(spacing)) < 0.9:
         return None, 0.0, none
     return plane, float(band), inl

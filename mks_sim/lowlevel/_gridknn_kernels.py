@@ -465,25 +465,7 @@ def radix_order(keys, bits):
     """A stable order sorting non-negative int64 ``keys`` below 2**bits: least significant
     digit first, 11 bits a pass (2 passes for a scan's voxel keys, where a comparison sort
     takes log2(N) passes over them)."""
-    n = keys.shape[0]
-    order = np.arange(n)
-    tmp = np.empty(n, np.int64)
-    count = np.empty(2049, np.int64)
-    shift = 0
-    while shift < bits:
-        count[:] = 0
-        for i in range(n):
-            count[((keys[order[i]] >> shift) & 2047) + 1] += 1
-        for d in range(2048):
-            count[d + 1] += count[d]
-        for i in range(n):
-            j = order[i]
-            d = (keys[j] >> shift) & 2047
-            tmp[count[d]] = j
-            count[d] += 1
-        order, tmp = tmp, order
-        shift += 11
-    return order
+    return radix_pairs(keys, bits)[1]
 
 
 @nb.njit(cache=True)

@@ -83,6 +83,27 @@ def point_to_plane_system(
 
 
 @nb.njit(cache=True)
+def _cell_sample(
+    px: float,
+    py: float,
+    pz: float,
+    origin: np.ndarray,
+    cell: float,
+    shape: np.ndarray,
+    index: np.ndarray,
+) -> int:  # pragma: no cover
+    """The sample the lookup grid holds for the cell nearest (px, py, pz) (its centre
+    rounded), -1 off the grid."""
+    cx = int(np.rint((px - origin[0]) / cell))
+    cy = int(np.rint((py - origin[1]) / cell))
+    cz = int(np.rint((pz - origin[2]) / cell))
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    if cx < 0 or cx >= nx or cy < 0 or cy >= ny or cz < 0 or cz >= nz:
+        return -1
+    return int(index[(cx * ny + cy) * nz + cz])
+
+
+@nb.njit(cache=True)
 def lookup_nearest(
     p: np.ndarray,
     origin: np.ndarray,
@@ -101,15 +122,11 @@ def lookup_nearest(
     d = np.full(n, np.inf)
     j = np.full(n, miss, np.int64)
     outside = np.zeros(n, np.bool_)
-    nx, ny, nz = shape[0], shape[1], shape[2]
     for i in range(n):
-        cx = int(np.rint((p[i, 0] - origin[0]) / cell))
-        cy = int(np.rint((p[i, 1] - origin[1]) / cell))
-        cz = int(np.rint((p[i, 2] - origin[2]) / cell))
-        if cx < 0 or cx >= nx or cy < 0 or cy >= ny or cz < 0 or cz >= nz:
+        q = _cell_sample(p[i, 0], p[i, 1], p[i, 2], origin, cell, shape, index)
+        if q < 0:
             outside[i] = True
             continue
-        q = index[(cx * ny + cy) * nz + cz]
         dx = p[i, 0] - points[q, 0]
         dy = p[i, 1] - points[q, 1]
         dz = p[i, 2] - points[q, 2]
@@ -140,7 +157,6 @@ def lookup_inlier_counts(
     query off the grid could have a sample within ``max_distance``.)"""
     k_poses = T.shape[0]
     n = scene.shape[0]
-    nx, ny, nz = shape[0], shape[1], shape[2]
     out = np.zeros(k_poses, np.int64)
     for k in range(k_poses):
         count = 0
@@ -151,12 +167,9 @@ def lookup_inlier_counts(
             px = dx0 * T[k, 0, 0] + dx1 * T[k, 1, 0] + dx2 * T[k, 2, 0]
             py = dx0 * T[k, 0, 1] + dx1 * T[k, 1, 1] + dx2 * T[k, 2, 1]
             pz = dx0 * T[k, 0, 2] + dx1 * T[k, 1, 2] + dx2 * T[k, 2, 2]
-            cx = int(np.rint((px - origin[0]) / cell))
-            cy = int(np.rint((py - origin[1]) / cell))
-            cz = int(np.rint((pz - origin[2]) / cell))
-            if cx < 0 or cx >= nx or cy < 0 or cy >= ny or cz < 0 or cz >= nz:
+            q = _cell_sample(px, py, pz, origin, cell, shape, index)
+            if q < 0:
                 continue
-            q = index[(cx * ny + cy) * nz + cz]
             ex = px - points[q, 0]
             ey = py - points[q, 1]
             ez = pz - points[q, 2]
@@ -224,7 +237,6 @@ def icp_lookup_loop(
     converged = False
     it = 0
     miss = points.shape[0]
-    nx, ny, nz = shape[0], shape[1], shape[2]
     for it in range(1, max_iterations + 1):  # noqa: B007 - returned
         for i in range(n):
             x = scene[i, 0]
@@ -238,12 +250,9 @@ def icp_lookup_loop(
             p[i, 2] = pz
             dist[i] = np.inf
             jj[i] = miss
-            cx = int(np.rint((px - origin[0]) / cell))
-            cy = int(np.rint((py - origin[1]) / cell))
-            cz = int(np.rint((pz - origin[2]) / cell))
-            if cx < 0 or cx >= nx or cy < 0 or cy >= ny or cz < 0 or cz >= nz:
+            q = _cell_sample(px, py, pz, origin, cell, shape, index)
+            if q < 0:
                 continue
-            q = index[(cx * ny + cy) * nz + cz]
             dx = px - points[q, 0]
             dy = py - points[q, 1]
             dz = pz - points[q, 2]
@@ -300,6 +309,36 @@ def icp_lookup_loop(
 
 
 @nb.njit(cache=True)
+def _set_pose(
+    T: np.ndarray, R: np.ndarray, t0: float, t1: float, t2: float
+) -> None:  # pragma: no cover
+    """T <- [[R, t], [0, 0, 0, 1]]."""
+    T[:] = 0.0
+    T[:3, :3] = R
+    T[0, 3] = t0
+    T[1, 3] = t1
+    T[2, 3] = t2
+    T[3, 3] = 1.0
+
+
+@nb.njit(cache=True)
+def _spans(
+    pts: np.ndarray, a0: float, a1: float, a2: float, b0: float, b1: float, b2: float
+) -> tuple[float, float, float, float]:  # pragma: no cover
+    """(lo, hi) of (P, 3) points projected on (a0, a1, a2), then on (b0, b1, b2)."""
+    lo_a, hi_a, lo_b, hi_b = np.inf, -np.inf, np.inf, -np.inf
+    for p in range(pts.shape[0]):
+        x = pts[p, 0]
+        y = pts[p, 1]
+        z = pts[p, 2]
+        pa = x * a0 + y * a1 + z * a2
+        pb = x * b0 + y * b1 + z * b2
+        lo_a, hi_a = min(lo_a, pa), max(hi_a, pa)
+        lo_b, hi_b = min(lo_b, pb), max(hi_b, pb)
+    return lo_a, hi_a, lo_b, hi_b
+
+
+@nb.njit(cache=True)
 def plane_pair_poses(
     normals: np.ndarray,
     offsets: np.ndarray,
@@ -322,7 +361,6 @@ def plane_pair_poses(
     frames). The same tests and solve; the rounding of the products may differ."""
     n_planes = normals.shape[0]
     n_pairs = pa.shape[0]
-    n_ext = extremes.shape[1]
     out = np.empty((n_planes * n_planes * n_pairs, 4, 4))
     count = 0
     e = np.empty(3)
@@ -359,22 +397,16 @@ def plane_pair_poses(
                 frame[i, 1] = f[i]
                 frame[i, 2] = e[i]
             # the plane's observed extents along e and f
-            lo_e, hi_e, lo_f, hi_f = np.inf, -np.inf, np.inf, -np.inf
-            for r in range(starts[a], starts[a + 1]):
-                pe = points[r, 0] * e[0] + points[r, 1] * e[1] + points[r, 2] * e[2]
-                pf = points[r, 0] * f[0] + points[r, 1] * f[1] + points[r, 2] * f[2]
-                lo_e, hi_e = min(lo_e, pe), max(hi_e, pe)
-                lo_f, hi_f = min(lo_f, pf), max(hi_f, pf)
+            lo_e, hi_e, lo_f, hi_f = _spans(
+                points[starts[a] : starts[a + 1]], e[0], e[1], e[2], f[0], f[1], f[2]
+            )
             if sampled[b]:
                 g[0] = Q1 * e[2] - Q2 * e[1]
                 g[1] = Q2 * e[0] - Q0 * e[2]
                 g[2] = Q0 * e[1] - Q1 * e[0]
-                lo_qe, hi_qe, lo_qg, hi_qg = np.inf, -np.inf, np.inf, -np.inf
-                for r in range(starts[b], starts[b + 1]):
-                    qe = points[r, 0] * e[0] + points[r, 1] * e[1] + points[r, 2] * e[2]
-                    qg = points[r, 0] * g[0] + points[r, 1] * g[1] + points[r, 2] * g[2]
-                    lo_qe, hi_qe = min(lo_qe, qe), max(hi_qe, qe)
-                    lo_qg, hi_qg = min(lo_qg, qg), max(hi_qg, qg)
+                lo_qe, hi_qe, lo_qg, hi_qg = _spans(
+                    points[starts[b] : starts[b + 1]], e[0], e[1], e[2], g[0], g[1], g[2]
+                )
             # lhs = [P; Q; e] and its inverse (the adjugate over the determinant)
             m00, m01, m02 = P0, P1, P2
             m10, m11, m12 = Q0, Q1, Q2
@@ -403,20 +435,12 @@ def plane_pair_poses(
                 R = frame @ pframes[k].T
                 # R^T e, R^T f (and R^T g): the scene directions in the model frame
                 fa = pa[k]
-                lo_ae, hi_ae, lo_af, hi_af = np.inf, -np.inf, np.inf, -np.inf
                 for u in range(3):
                     v[u] = R[0, u] * e[0] + R[1, u] * e[1] + R[2, u] * e[2]
                 rf0 = R[0, 0] * f[0] + R[1, 0] * f[1] + R[2, 0] * f[2]
                 rf1 = R[0, 1] * f[0] + R[1, 1] * f[1] + R[2, 1] * f[2]
                 rf2 = R[0, 2] * f[0] + R[1, 2] * f[1] + R[2, 2] * f[2]
-                for p in range(n_ext):
-                    x = extremes[fa, p, 0]
-                    y = extremes[fa, p, 1]
-                    z = extremes[fa, p, 2]
-                    ae = x * v[0] + y * v[1] + z * v[2]
-                    af = x * rf0 + y * rf1 + z * rf2
-                    lo_ae, hi_ae = min(lo_ae, ae), max(hi_ae, ae)
-                    lo_af, hi_af = min(lo_af, af), max(hi_af, af)
+                lo_ae, hi_ae, lo_af, hi_af = _spans(extremes[fa], v[0], v[1], v[2], rf0, rf1, rf2)
                 if not (
                     hi_e - lo_e <= hi_ae - lo_ae + slack and hi_f - lo_f <= hi_af - lo_af + slack
                 ):
@@ -426,15 +450,9 @@ def plane_pair_poses(
                     rg0 = R[0, 0] * g[0] + R[1, 0] * g[1] + R[2, 0] * g[2]
                     rg1 = R[0, 1] * g[0] + R[1, 1] * g[1] + R[2, 1] * g[2]
                     rg2 = R[0, 2] * g[0] + R[1, 2] * g[1] + R[2, 2] * g[2]
-                    lo_be, hi_be, lo_bg, hi_bg = np.inf, -np.inf, np.inf, -np.inf
-                    for p in range(n_ext):
-                        x = extremes[fb, p, 0]
-                        y = extremes[fb, p, 1]
-                        z = extremes[fb, p, 2]
-                        be = x * v[0] + y * v[1] + z * v[2]
-                        bg = x * rg0 + y * rg1 + z * rg2
-                        lo_be, hi_be = min(lo_be, be), max(hi_be, be)
-                        lo_bg, hi_bg = min(lo_bg, bg), max(hi_bg, bg)
+                    lo_be, hi_be, lo_bg, hi_bg = _spans(
+                        extremes[fb], v[0], v[1], v[2], rg0, rg1, rg2
+                    )
                     if not (
                         hi_qe - lo_qe <= hi_be - lo_be + slack
                         and hi_qg - lo_qg <= hi_bg - lo_bg + slack
@@ -451,13 +469,7 @@ def plane_pair_poses(
                     continue
                 if not np.all(np.isfinite(R)):
                     continue
-                T = out[count]
-                T[:] = 0.0
-                T[:3, :3] = R
-                T[0, 3] = t0
-                T[1, 3] = t1
-                T[2, 3] = t2
-                T[3, 3] = 1.0
+                _set_pose(out[count], R, t0, t1, t2)
                 count += 1
     return out[:count].copy()
 
@@ -659,12 +671,6 @@ def vertex_poses(
                     seen[best] = count + 1
                     n_votes += 1
             votes[count] = n_votes
-            T = mats[count]
-            T[:] = 0.0
-            T[:3, :3] = R
-            T[0, 3] = t0
-            T[1, 3] = t1
-            T[2, 3] = t2
-            T[3, 3] = 1.0
+            _set_pose(mats[count], R, t0, t1, t2)
             count += 1
     return votes[:count].copy(), mats[:count].copy(), match[:count].copy()
