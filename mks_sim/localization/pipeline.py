@@ -673,7 +673,9 @@ def localize_cloud(
             when the vertexes' own hypotheses score under ``min_score`` (its cost grows with
             the cube of the vertexes: 10-35 ms for the industrial part seen with 9-13).
             Thorough grouping also orders the region seeds by two-ring flatness (touching
-            parts in a bin; see :func:`_group_segment`).
+            parts in a bin; see :func:`_group_segment`), and the planes, hypotheses and
+            verification keep numpy's arithmetic: by default they run their compiled passes
+            (``compiled``/``fused`` flags: the same steps, rounding may differ by ~1e-15).
         rng: generator (RANSAC, subsampling); default seeded 0.
 
     Returns:
