@@ -546,3 +546,39 @@ def test_vertex_hypotheses_compiled_as_by_numpy(monkeypatch: pytest.MonkeyPatch)
             assert np.abs(x.matrix - y.matrix).max() < 1e-12
         n_hyps += len(a)
     assert n_hyps > 20
+
+
+def test_table_tests_compiled_as_by_numpy() -> None:
+    """``find_table`` without ``near_z``: the compiled band and footprint tests
+    (``_support``) give numpy's answer (``_support_numpy``) for the same plane -- the same
+    plane, band and band mask, or the same refusal -- on table scans with objects, a scan
+    seen from below (refused: the table faces away) and a plane with nothing on it
+    (refused: no objects)."""
+    import mks_sim.localization.verify as vf
+    from mks_sim.localization.representation import spacing_and_noise
+    from mks_sim.lowlevel.regions import fit_plane_ransac
+
+    if not vf._gridknn.available():
+        pytest.skip("needs numba")
+    rng = np.random.default_rng(14)
+    clouds = []
+    for k in range(4):
+        T = make_transform(_rot_z(0.3 * k), [0.01 * k, -0.01, 0.025])
+        clouds.append((_table_scan(box_mesh(0.05), T, EYES[k % 2], rng), EYES[k % 2]))
+    clouds.append((clouds[0][0], np.array([0.3, 0.2, -0.4])))  # the eye under the table
+    flat = np.column_stack([rng.uniform(-0.2, 0.2, (3000, 2)), rng.normal(0, 2e-4, 3000)])
+    clouds.append((flat, EYES[0]))
+    found = []
+    for pts, eye in clouds:
+        spacing, noise = spacing_and_noise(pts, np.random.default_rng(0))
+        threshold = max(spacing, 3.0 * noise)
+        plane, _ = fit_plane_ransac(pts, threshold, np.random.default_rng(1), iterations=150)
+        pa, ba, ma = vf._support(pts, plane, threshold, spacing, eye, 0.2)
+        pb, bb, mb = vf._support_numpy(pts, plane, threshold, spacing, eye, 0.2)
+        assert (pa is None) == (pb is None)
+        found.append(pa is not None)
+        if pa is not None and pb is not None:
+            assert np.array_equal(pa.normal, pb.normal) and pa.offset == pb.offset
+            assert abs(ba - bb) < 1e-15 and np.array_equal(ma, mb)
+            assert pa.normal[2] > 0.99  # the table, facing the objects
+    assert found == [True, True, True, True, False, False]

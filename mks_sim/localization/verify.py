@@ -92,8 +92,21 @@ def find_table(
     plane, _ = fit_plane_ransac(
         points, threshold, rng, iterations=150, fit_points=TABLE_FIT_POINTS, compiled_fit=True
     )
-    if _gridknn.available():
-        return _support(points, plane, threshold, spacing, viewpoint, min_fraction)
+    support = _support if _gridknn.available() else _support_numpy
+    return support(points, plane, threshold, spacing, viewpoint, min_fraction)
+
+
+def _support_numpy(
+    points: FloatArray,
+    plane: Plane,
+    threshold: float,
+    spacing: float,
+    viewpoint: FloatArray | None,
+    min_fraction: float,
+) -> tuple[Plane | None, float, NDArray[np.bool_]]:
+    """:func:`find_table`'s tests of a dominant plane without ``near_z``, by numpy (the
+    reference of :func:`_support`)."""
+    none = np.zeros(len(points), dtype=bool)
     d = plane.distance(points)
     near = np.abs(d) <= 3.0 * threshold
     band = max(threshold, 4.0 * 1.4826 * _gridknn.median(np.abs(d[near])))
