@@ -496,8 +496,8 @@ def vertex_hypotheses(
             corners (False with ``rotinv``: the rotation-invariant Hough's alone).
         compiled: those corner hypotheses in one compiled pass when numba imports
             (:func:`mks_sim.models._refine_kernels.vertex_poses`: the same tests in the same
-            order; the SVD's and the products' rounding may differ: ``localize_cloud`` asks
-            for it, the workstation keeps numpy's).
+            order; the rotations' and the products' rounding may differ: ``localize_cloud``
+            asks for it, the workstation keeps numpy's).
 
     Returns:
         At most ``keep`` hypotheses, most voted first (ties: better quick inlier fraction).
@@ -506,12 +506,10 @@ def vertex_hypotheses(
         return []
     cpts = model.vertexes
     out: list[tuple[int, FloatArray, NDArray[np.int64]]] = []
-    det_tree = cKDTree(detected.points)
     c_point, c_normals = model.corner_triples  # (K, 3), (K, 3, 3): every ordered triple
     c_gram = np.einsum("kij,klj->kil", c_normals, c_normals)  # (K, 3, 3)
     cos_max = np.cos(np.radians(max_angle_deg))
-    fast = corners and compiled and _gridknn.available()
-    if fast:
+    if corners and compiled and _gridknn.available():
         from mks_sim.models._refine_kernels import vertex_poses
 
         votes_c, mats_c, match_c = vertex_poses(
@@ -522,32 +520,34 @@ def vertex_hypotheses(
             float(cos_max), float(vote_distance),
         )  # fmt: skip
         out.extend(zip(votes_c.tolist(), mats_c, match_c, strict=True))
-    for di in range(len(detected) if corners and not fast else 0):
-        Nd = detected.normals[di]
-        sel = np.flatnonzero(np.abs(c_gram - Nd @ Nd.T).max(axis=(1, 2)) <= 0.35)
-        if sel.size == 0:
-            continue
-        M = c_normals[sel]  # (K', 3, 3) rows = model normals
-        # Batched Kabsch: R m_i ~ n_i.
-        R = rotation_from_covariance(np.matmul(np.transpose(M, (0, 2, 1)), Nd))  # (K', 3, 3)
-        # worst normal agreement: min over m of (R_k m_m) . n_m (matmul; einsum is slower)
-        cos = (np.matmul(M, np.transpose(R, (0, 2, 1))) * Nd[None]).sum(axis=2).min(axis=1)
-        good = cos >= cos_max
-        R, kept = R[good], sel[good]
-        t = detected.points[di] - np.matmul(R, c_point[kept][:, :, None])[:, :, 0]  # (K'', 3)
-        moved = np.matmul(cpts[None], np.transpose(R, (0, 2, 1))) + t[:, None, :]  # (K'', V, 3)
-        _, j = det_tree.query(moved.reshape(-1, 3), distance_upper_bound=vote_distance)
-        j = j.reshape(len(R), -1)  # (K'', V) detected vertex of each model corner (n: none)
-        # votes: distinct detected vertexes hit, per hypothesis (sorted rows, no loop)
-        js = np.sort(j, axis=1)
-        n_det = len(detected)
-        votes = (js[:, 0] < n_det).astype(np.intp)
-        votes += ((js[:, 1:] != js[:, :-1]) & (js[:, 1:] < n_det)).sum(axis=1)
-        T = np.zeros((len(R), 4, 4))  # [[R, t], [0, 0, 0, 1]] for all of them at once
-        T[:, :3, :3] = R
-        T[:, :3, 3] = t
-        T[:, 3, 3] = 1.0
-        out.extend(zip(votes.tolist(), T, j, strict=True))
+    elif corners:
+        det_tree = cKDTree(detected.points)
+        for di in range(len(detected)):
+            Nd = detected.normals[di]
+            sel = np.flatnonzero(np.abs(c_gram - Nd @ Nd.T).max(axis=(1, 2)) <= 0.35)
+            if sel.size == 0:
+                continue
+            M = c_normals[sel]  # (K', 3, 3) rows = model normals
+            # Batched Kabsch: R m_i ~ n_i.
+            R = rotation_from_covariance(np.matmul(np.transpose(M, (0, 2, 1)), Nd))  # (K', 3, 3)
+            # worst normal agreement: min over m of (R_k m_m) . n_m (matmul; einsum is slower)
+            cos = (np.matmul(M, np.transpose(R, (0, 2, 1))) * Nd[None]).sum(axis=2).min(axis=1)
+            good = cos >= cos_max
+            R, kept = R[good], sel[good]
+            t = detected.points[di] - np.matmul(R, c_point[kept][:, :, None])[:, :, 0]  # (K'', 3)
+            moved = np.matmul(cpts[None], np.transpose(R, (0, 2, 1))) + t[:, None, :]  # (K'', V, 3)
+            _, j = det_tree.query(moved.reshape(-1, 3), distance_upper_bound=vote_distance)
+            j = j.reshape(len(R), -1)  # (K'', V) detected vertex of each model corner (n: none)
+            # votes: distinct detected vertexes hit, per hypothesis (sorted rows, no loop)
+            js = np.sort(j, axis=1)
+            n_det = len(detected)
+            votes = (js[:, 0] < n_det).astype(np.intp)
+            votes += ((js[:, 1:] != js[:, :-1]) & (js[:, 1:] < n_det)).sum(axis=1)
+            T = np.zeros((len(R), 4, 4))  # [[R, t], [0, 0, 0, 1]] for all of them at once
+            T[:, :3, :3] = R
+            T[:, :3, 3] = t
+            T[:, 3, 3] = 1.0
+            out.extend(zip(votes.tolist(), T, j, strict=True))
     if rotinv:
         out.extend(_rotinv_hypotheses(model, detected, vote_distance))
     if not out:

@@ -163,14 +163,12 @@ def robust_plane(
         limit = max(3.0 * (1.4826 * np.median(buf[:count])), 1e-12)
         m = 0
         same = True
-        k = 0
         for i in range(n):
             if r[i] <= limit:
+                if m >= count or keep[m] != i:
+                    same = False
                 new[m] = i
                 m += 1
-                if k >= count or keep[k] != i:
-                    same = False
-                k += 1
         if m != count:
             same = False
         if m < 3 or same:

@@ -15,6 +15,8 @@ import math
 import numba as nb
 import numpy as np
 
+from mks_sim.lowlevel._gridknn_kernels import smallest_vectors
+
 
 @nb.njit(cache=True)
 def point_to_plane_system(
@@ -228,38 +230,21 @@ def icp_lookup_loop(
     n = scene.shape[0]
     S = scene_to_model.copy()
     p = np.empty((n, 3))
-    dist = np.empty(n)
-    jj = np.empty(n, np.int64)
     step = np.zeros(6)
     history = np.empty(max_iterations)
     n_hist = 0
     rmse = np.inf
     converged = False
     it = 0
-    miss = points.shape[0]
     for it in range(1, max_iterations + 1):  # noqa: B007 - returned
         for i in range(n):
             x = scene[i, 0]
             y = scene[i, 1]
             z = scene[i, 2]
-            px = S[0, 0] * x + S[0, 1] * y + S[0, 2] * z + S[0, 3]
-            py = S[1, 0] * x + S[1, 1] * y + S[1, 2] * z + S[1, 3]
-            pz = S[2, 0] * x + S[2, 1] * y + S[2, 2] * z + S[2, 3]
-            p[i, 0] = px
-            p[i, 1] = py
-            p[i, 2] = pz
-            dist[i] = np.inf
-            jj[i] = miss
-            q = _cell_sample(px, py, pz, origin, cell, shape, index)
-            if q < 0:
-                continue
-            dx = px - points[q, 0]
-            dy = py - points[q, 1]
-            dz = pz - points[q, 2]
-            di = np.sqrt(dx * dx + dy * dy + dz * dz)
-            if di < max_distance:
-                dist[i] = di
-                jj[i] = q
+            p[i, 0] = S[0, 0] * x + S[0, 1] * y + S[0, 2] * z + S[0, 3]
+            p[i, 1] = S[1, 0] * x + S[1, 1] * y + S[1, 2] * z + S[1, 3]
+            p[i, 2] = S[2, 0] * x + S[2, 1] * y + S[2, 2] * z + S[2, 3]
+        dist, jj, _ = lookup_nearest(p, origin, cell, shape, index, points, max_distance)
         H, g, ss, used = point_to_plane_system(p, dist, jj, normals, offsets, trim)
         if used < 6:
             break
@@ -367,6 +352,8 @@ def plane_pair_poses(
     f = np.empty(3)
     g = np.empty(3)
     v = np.empty(3)
+    lhs = np.empty((3, 3))
+    inv_t = np.empty((3, 3))
     for a in range(n_planes):
         if not sampled[a]:
             continue
@@ -407,27 +394,14 @@ def plane_pair_poses(
                 lo_qe, hi_qe, lo_qg, hi_qg = _spans(
                     points[starts[b] : starts[b + 1]], e[0], e[1], e[2], g[0], g[1], g[2]
                 )
-            # lhs = [P; Q; e] and its inverse (the adjugate over the determinant)
-            m00, m01, m02 = P0, P1, P2
-            m10, m11, m12 = Q0, Q1, Q2
-            m20, m21, m22 = e[0], e[1], e[2]
-            det = (
-                m00 * (m11 * m22 - m12 * m21)
-                - m01 * (m10 * m22 - m12 * m20)
-                + m02 * (m10 * m21 - m11 * m20)
-            )
+            # lhs = [P; Q; e] and its inverse's transpose (the cofactors over the determinant)
+            lhs[0, 0], lhs[0, 1], lhs[0, 2] = P0, P1, P2
+            lhs[1, 0], lhs[1, 1], lhs[1, 2] = Q0, Q1, Q2
+            lhs[2, 0], lhs[2, 1], lhs[2, 2] = e[0], e[1], e[2]
+            det = _det3(lhs)
             if not abs(det) > 1e-12:
                 continue
-            inv = np.empty((3, 3))
-            inv[0, 0] = (m11 * m22 - m12 * m21) / det
-            inv[0, 1] = (m02 * m21 - m01 * m22) / det
-            inv[0, 2] = (m01 * m12 - m02 * m11) / det
-            inv[1, 0] = (m12 * m20 - m10 * m22) / det
-            inv[1, 1] = (m00 * m22 - m02 * m20) / det
-            inv[1, 2] = (m02 * m10 - m00 * m12) / det
-            inv[2, 0] = (m10 * m21 - m11 * m20) / det
-            inv[2, 1] = (m01 * m20 - m00 * m21) / det
-            inv[2, 2] = (m00 * m11 - m01 * m10) / det
+            _inverse_transpose3(lhs, det, inv_t)
             mid_s = (hi_e + lo_e) / 2
             for k in range(n_pairs):
                 if not abs(pcos[k] - cpq) <= cos_tol:
@@ -462,9 +436,9 @@ def plane_pair_poses(
                 r0 = offsets[a] - face_offsets[pa[k]]
                 r1 = offsets[b] - face_offsets[pb[k]]
                 r2 = mid_s - mid_m
-                t0 = r0 * inv[0, 0] + r1 * inv[0, 1] + r2 * inv[0, 2]
-                t1 = r0 * inv[1, 0] + r1 * inv[1, 1] + r2 * inv[1, 2]
-                t2 = r0 * inv[2, 0] + r1 * inv[2, 1] + r2 * inv[2, 2]
+                t0 = r0 * inv_t[0, 0] + r1 * inv_t[1, 0] + r2 * inv_t[2, 0]
+                t1 = r0 * inv_t[0, 1] + r1 * inv_t[1, 1] + r2 * inv_t[2, 1]
+                t2 = r0 * inv_t[0, 2] + r1 * inv_t[1, 2] + r2 * inv_t[2, 2]
                 if not (np.isfinite(t0) and np.isfinite(t1) and np.isfinite(t2)):
                     continue
                 if not np.all(np.isfinite(R)):
@@ -484,6 +458,20 @@ def _det3(X: np.ndarray) -> float:  # pragma: no cover
 
 
 @nb.njit(cache=True)
+def _inverse_transpose3(X: np.ndarray, det: float, Y: np.ndarray) -> None:  # pragma: no cover
+    """Y <- X^-T of a 3x3 ``X`` of determinant ``det``: its cofactors over ``det``."""
+    Y[0, 0] = (X[1, 1] * X[2, 2] - X[1, 2] * X[2, 1]) / det
+    Y[0, 1] = (X[1, 2] * X[2, 0] - X[1, 0] * X[2, 2]) / det
+    Y[0, 2] = (X[1, 0] * X[2, 1] - X[1, 1] * X[2, 0]) / det
+    Y[1, 0] = (X[0, 2] * X[2, 1] - X[0, 1] * X[2, 2]) / det
+    Y[1, 1] = (X[0, 0] * X[2, 2] - X[0, 2] * X[2, 0]) / det
+    Y[1, 2] = (X[0, 1] * X[2, 0] - X[0, 0] * X[2, 1]) / det
+    Y[2, 0] = (X[0, 1] * X[1, 2] - X[0, 2] * X[1, 1]) / det
+    Y[2, 1] = (X[0, 2] * X[1, 0] - X[0, 0] * X[1, 2]) / det
+    Y[2, 2] = (X[0, 0] * X[1, 1] - X[0, 1] * X[1, 0]) / det
+
+
+@nb.njit(cache=True)
 def _kabsch3(
     H: np.ndarray, X: np.ndarray, Y: np.ndarray, R: np.ndarray
 ) -> None:  # pragma: no cover
@@ -491,9 +479,10 @@ def _kabsch3(
     (``geometry.transforms.rotation_from_covariance``), without LAPACK: H's orthogonal
     polar factor Q by Newton's iteration ``X <- (X + X^-T) / 2`` (H = U S V^T, Q = U V^T);
     R = Q^T when det H > 0; else R = (I - 2 v v^T) Q^T = V diag(1, 1, -1) U^T, v the
-    eigenvector of P = Q^T H = V S V^T of its smallest eigenvalue (the reflection guard).
-    A singular H, or a P whose two smallest eigenvalues (nearly) coincide, goes to the
-    SVD. ``X``, ``Y``: 3x3 scratch."""
+    eigenvector of P = Q^T H = V S V^T of its smallest eigenvalue (the reflection guard;
+    the vector by the normals' kernel, ``_gridknn_kernels.smallest_vectors``). A singular
+    H, or a P whose smallest eigenvalue has no distinct eigenvector, goes to the SVD.
+    ``X``, ``Y``: 3x3 scratch."""
     scale = 0.0
     for i in range(3):
         for j in range(3):
@@ -503,16 +492,7 @@ def _kabsch3(
     if abs(det_h) > 1e-6 * scale**1.5:
         for _ in range(60):
             d = _det3(X)
-            # X^-T = cofactor(X) / det
-            Y[0, 0] = (X[1, 1] * X[2, 2] - X[1, 2] * X[2, 1]) / d
-            Y[0, 1] = (X[1, 2] * X[2, 0] - X[1, 0] * X[2, 2]) / d
-            Y[0, 2] = (X[1, 0] * X[2, 1] - X[1, 1] * X[2, 0]) / d
-            Y[1, 0] = (X[0, 2] * X[2, 1] - X[0, 1] * X[2, 2]) / d
-            Y[1, 1] = (X[0, 0] * X[2, 2] - X[0, 2] * X[2, 0]) / d
-            Y[1, 2] = (X[0, 1] * X[2, 0] - X[0, 0] * X[2, 1]) / d
-            Y[2, 0] = (X[0, 1] * X[1, 2] - X[0, 2] * X[1, 1]) / d
-            Y[2, 1] = (X[0, 2] * X[1, 0] - X[0, 0] * X[1, 2]) / d
-            Y[2, 2] = (X[0, 0] * X[1, 1] - X[0, 1] * X[1, 0]) / d
+            _inverse_transpose3(X, d, Y)
             # scaled Newton (det-scaling) while far, plain near the limit
             g = abs(d) ** (-1.0 / 3.0)
             change = 0.0
@@ -548,31 +528,17 @@ def _kabsch3(
             ) / pp**3
             phi = math.acos(min(max(det_b / 2.0, -1.0), 1.0)) / 3.0
             lam = q + 2.0 * pp * math.cos(phi + 2.0 * math.pi / 3.0)
-            lam_mid = q + 2.0 * pp * math.cos(phi - 2.0 * math.pi / 3.0)
-            if lam_mid - lam > 1e-6 * (abs(q) + pp):
-                r0 = (p00 - lam, p01, p02)
-                r1 = (p01, p11 - lam, p12)
-                r2 = (p02, p12, p22 - lam)
-                best = -1.0
-                v0 = v1 = v2 = 0.0
-                for u, w in ((r0, r1), (r0, r2), (r1, r2)):
-                    c0 = u[1] * w[2] - u[2] * w[1]
-                    c1 = u[2] * w[0] - u[0] * w[2]
-                    c2 = u[0] * w[1] - u[1] * w[0]
-                    nn = c0 * c0 + c1 * c1 + c2 * c2
-                    if nn > best:
-                        best, v0, v1, v2 = nn, c0, c1, c2
-                if best > 0:
-                    nv = math.sqrt(best)
-                    v0, v1, v2 = v0 / nv, v1 / nv, v2 / nv
-                    vv = (v0, v1, v2)
-                    # R = (I - 2 v v^T) Q^T
-                    for i in range(3):
-                        for j in range(3):
-                            R[i, j] = X[j, i] - 2.0 * vv[i] * (
-                                v0 * X[j, 0] + v1 * X[j, 1] + v2 * X[j, 2]
-                            )
-                    return
+            # its eigenvector as the normals' kernel finds it (``bad``: degenerate, the SVD)
+            cov = np.array([[p00, p01, p02, p11, p12, p22]])
+            vec, bad = smallest_vectors(cov, np.array([lam]), np.array([q]), np.ones(1, np.bool_))
+            if not bad[0]:
+                v0, v1, v2 = vec[0, 0], vec[0, 1], vec[0, 2]
+                # R = (I - 2 v v^T) Q^T
+                for i in range(3):
+                    vi = vec[0, i]
+                    for j in range(3):
+                        R[i, j] = X[j, i] - 2.0 * vi * (v0 * X[j, 0] + v1 * X[j, 1] + v2 * X[j, 2])
+                return
     U, _, Vt = np.linalg.svd(H)
     V = Vt.T.copy()
     Ut = U.T.copy()
@@ -596,8 +562,8 @@ def vertex_poses(
     """The corner hypotheses of :func:`mks_sim.localization.hypotheses.vertex_hypotheses` in
     one compiled pass, in its order: for each detected vertex (its point and three face
     normals) and each model corner triple whose normals' Gram matrix is within 0.35 of the
-    vertex's, the Kabsch rotation of the triple's normals onto the vertex's (SVD, reflection
-    guarded), kept when every normal agrees within ``cos_max``; the translation takes the
+    vertex's, the Kabsch rotation of the triple's normals onto the vertex's
+    (:func:`_kabsch3`, reflection guarded), kept when every normal agrees within ``cos_max``; the translation takes the
     corner onto the vertex; each model corner is moved and matched to the nearest detected
     vertex strictly within ``vote_distance`` (none: the vertex count), and the votes are the
     distinct vertexes matched. Returns ``(votes (H,), matrices (H, 4, 4), matches (H, V))``.
