@@ -503,6 +503,27 @@ def test_column_mean_is_numpys_axis0_mean_to_the_bit() -> None:
         assert column_mean(a).tobytes() == a.mean(axis=0).tobytes()
 
 
+def test_column_bounds_are_numpys_min_and_max() -> None:
+    """``column_bounds`` gives ``a.min(axis=0)`` and ``a.max(axis=0)``: the compiled pass
+    for finite (N, 3) float64 rows, numpy's own rules where a NaN or inf is among them, and
+    numpy for other shapes, dtypes and strides."""
+    from mks_sim.lowlevel import _gridknn
+    from mks_sim.lowlevel._gridknn import column_bounds
+
+    if not _gridknn.available():
+        pytest.skip("numba not importable")
+    rng = np.random.default_rng(23)
+    for _ in range(200):
+        n, k = int(rng.integers(1, 5000)), int(rng.choice([2, 3, 3, 4]))
+        a = rng.normal(size=(n, k)) * 10.0 ** rng.integers(-4, 4)
+        if rng.random() < 0.3:
+            a[rng.integers(0, n), rng.integers(0, k)] = rng.choice([np.nan, np.inf, -np.inf])
+        for arr in (a, a[::2], a.astype(np.float32)):
+            lo, hi = column_bounds(arr)
+            np.testing.assert_array_equal(lo, arr.min(axis=0))
+            np.testing.assert_array_equal(hi, arr.max(axis=0))
+
+
 def test_row_norms_are_numpys_norms_to_the_bit() -> None:
     """``row_norms`` gives ``np.linalg.norm(a, axis=1)`` bit for bit (N x 3 by the three
     squares in order, other shapes by numpy)."""

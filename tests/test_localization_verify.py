@@ -494,6 +494,39 @@ def test_distinct_placements_groups_poses_equal_up_to_a_symmetry() -> None:
         assert f == np.flatnonzero(inverse == g)[0]
 
 
+def test_distinct_placements_compiled_take_numpys_symmetric_images() -> None:
+    """The compiled symmetric images (``canonical_rotations``) are numpy's einsum images to
+    the bit, so both paths group the same poses: random rotations, rotations that are
+    themselves cube symmetries (exact entries, many equal scores) and a model without
+    symmetries."""
+    from scipy.spatial.transform import Rotation
+
+    from mks_sim.geometry.transforms import cube_rotations
+    from mks_sim.localization.hypotheses import _GENERIC_ROTATION, _distinct_placements
+    from mks_sim.lowlevel import _gridknn
+
+    if not _gridknn.available():
+        pytest.skip("numba not importable")
+    from mks_sim.localization._hypotheses_kernels import canonical_rotations
+
+    syms = cube_rotations()
+    S = np.concatenate([np.eye(3)[None], syms])
+    rng = np.random.default_rng(31)
+    for seed in range(20):
+        R = np.concatenate([Rotation.random(60, random_state=seed).as_matrix(), syms])
+        RS = np.einsum("kij,sjl->ksil", R, S)
+        want = RS[np.arange(len(R)), np.einsum("ksij,ij->ks", RS, _GENERIC_ROTATION).argmax(1)]
+        assert canonical_rotations(R, S, _GENERIC_ROTATION).tobytes() == want.tobytes()
+        mats = np.zeros((len(R), 4, 4))
+        mats[:, :3, :3] = R @ syms[rng.integers(0, len(syms), len(R))]
+        mats[:, :3, 3] = rng.normal(size=(len(R), 3)) * 0.01
+        mats[:, 3, 3] = 1.0
+        for sym in (syms, None):
+            a = _distinct_placements(mats, sym, 0.002, compiled=False)
+            b = _distinct_placements(mats, sym, 0.002, compiled=True)
+            assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+
+
 def test_components_merge_when_one_object_could_span_them() -> None:
     """Brute force over the point pairs: two components merge when some pair is nearer than
     a quarter of the model's size and together they fit in 1.1 x its size; a component

@@ -390,6 +390,54 @@ def test_icp_stall_stops_a_sliding_fit_and_keeps_a_converging_one() -> None:
 
 
 @pytest.mark.skipif(not _paths()[-1], reason="needs numba")
+def test_point_to_plane_system_adds_the_pairs_in_order() -> None:
+    """The compiled normal equations are the plain sums, pair after pair: Python's own
+    floats, each ``H[u][v] += a_u a_v`` and ``g[u] += a_u r`` in the pairs' order, give the
+    same bits; misses (inf) and the pairs beyond the trim rank are left out, and fewer than
+    6 pairs give no system."""
+    from mks_sim.models._refine_kernels import point_to_plane_system
+
+    rng = np.random.default_rng(41)
+    for n, trim in ((5, 0.9), (12, 0.9), (300, 0.9), (300, 1.0), (1000, 0.8)):
+        p = rng.normal(size=(n, 3)) * 0.05
+        dist = rng.uniform(0.0, 0.004, n)
+        dist[rng.random(n) < 0.1] = np.inf
+        j = rng.integers(0, 50, n)
+        normals = rng.normal(size=(50, 3))
+        normals /= np.linalg.norm(normals, axis=1)[:, None]
+        offsets = rng.normal(size=50) * 0.01
+        H, g, ss, used = point_to_plane_system(p, dist, j, normals, offsets, trim)
+        ok = np.isfinite(dist)
+        if ok.sum() < 6:  # too few pairs: no system
+            assert used == ok.sum() and ss == 0.0 and not H.any() and not g.any()
+            continue
+        thr = np.inf
+        if trim < 1.0 and ok.sum() > 10:
+            kth = int(trim * (ok.sum() - 1))
+            thr = np.partition(dist[ok], kth)[kth]
+        h_ref = [[0.0] * 6 for _ in range(6)]
+        g_ref, ss_ref, used_ref = [0.0] * 6, 0.0, 0
+        for i in range(n):
+            if not (ok[i] and dist[i] <= thr):
+                continue
+            nx, ny, nz = (float(v) for v in normals[j[i]])
+            px, py, pz = (float(v) for v in p[i])
+            r = px * nx + py * ny + pz * nz - float(offsets[j[i]])
+            a = [py * nz - pz * ny, pz * nx - px * nz, px * ny - py * nx, nx, ny, nz]
+            for u in range(6):
+                g_ref[u] += a[u] * r
+                for v in range(u, 6):
+                    h_ref[u][v] += a[u] * a[v]
+            ss_ref += r * r
+            used_ref += 1
+        for u in range(6):
+            for v in range(u):
+                h_ref[u][v] = h_ref[v][u]
+        assert used == used_ref and ss == ss_ref
+        assert H.tobytes() == np.array(h_ref).tobytes() and g.tobytes() == np.array(g_ref).tobytes()
+
+
+@pytest.mark.skipif(not _paths()[-1], reason="needs numba")
 def test_fused_icp_takes_the_loops_steps() -> None:
     """``fused=True`` runs the iterations in one compiled call: from the same starts on the
     part's scans (stall, trim, two-cycle and tolerance on), the same number of iterations,

@@ -55,3 +55,42 @@ def sphere_gauss_newton(
         if np.sqrt(delta[0] ** 2 + delta[1] ** 2 + delta[2] ** 2) < 1e-6:
             break
     return c
+
+
+@nb.njit(cache=True)
+def _image_entry(R: np.ndarray, S: np.ndarray, k: int, s: int, i: int, m: int) -> float:  # pragma: no cover
+    """Entry (i, m) of ``R[k] @ S[s]``, its three products added in order (einsum's)."""
+    return R[k, i, 0] * S[s, 0, m] + R[k, i, 1] * S[s, 1, m] + R[k, i, 2] * S[s, 2, m]
+
+
+@nb.njit(cache=True)
+def canonical_rotations(
+    R: np.ndarray, S: np.ndarray, G: np.ndarray
+) -> np.ndarray:  # pragma: no cover
+    """(K, 3, 3): of each rotation's images ``R[k] @ S[s]`` under the (S, 3, 3) symmetries,
+    the first with the largest ``sum(image * G)`` -- what
+    :func:`mks_sim.localization.hypotheses._distinct_placements` computes with two einsums
+    and an argmax, in numpy's order of additions (the same images to the bit), without the
+    (K, S, 3, 3) array: a hundred poses of the cube 0.6 -> 0.03 ms."""
+    n_rot = R.shape[0]
+    n_sym = S.shape[0]
+    out = np.empty((n_rot, 3, 3))
+    img = np.empty((3, 3))
+    for k in range(n_rot):
+        best = -np.inf
+        pick = 0
+        for s in range(n_sym):
+            for i in range(3):
+                for m in range(3):
+                    img[i, m] = _image_entry(R, S, k, s, i, m)
+            v = 0.0
+            for i in range(3):
+                for m in range(3):
+                    v += img[i, m] * G[i, m]
+            if v > best:  # (the first of equal scores, as argmax)
+                best = v
+                pick = s
+        for i in range(3):
+            for m in range(3):
+                out[k, i, m] = _image_entry(R, S, k, pick, i, m)
+    return out

@@ -574,11 +574,18 @@ def vertex_hypotheses(
 
 
 def _distinct_placements(
-    matrices: FloatArray, symmetries: FloatArray | None, tolerance: float
+    matrices: FloatArray,
+    symmetries: FloatArray | None,
+    tolerance: float,
+    compiled: bool | None = None,
 ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """Poses that are the same placement up to a model symmetry, grouped in arrays: each
     rotation is replaced by its symmetric image closest to a fixed generic rotation, then
     rotations (to 0.01) and translations (to ``tolerance``) are rounded and compared.
+
+    ``compiled``: the symmetric images in one compiled pass
+    (:func:`~mks_sim.localization._hypotheses_kernels.canonical_rotations`, the same values)
+    or numpy's einsums; None: compiled when numba imports.
 
     Returns:
         (first index of each group, (K,) group of each pose); poses near a rounding boundary
@@ -587,9 +594,16 @@ def _distinct_placements(
     R = matrices[:, :3, :3]
     if symmetries is not None and len(symmetries):
         S = np.concatenate([np.eye(3)[None], np.asarray(symmetries, dtype=np.float64)])
-        RS = np.einsum("kij,sjl->ksil", R, S)  # (K, S, 3, 3)
-        best = np.einsum("ksij,ij->ks", RS, _GENERIC_ROTATION).argmax(axis=1)
-        R = RS[np.arange(len(R)), best]
+        if compiled is None:
+            compiled = _gridknn.available()
+        if compiled:  # (the same images, one compiled pass)
+            from mks_sim.localization._hypotheses_kernels import canonical_rotations
+
+            R = canonical_rotations(np.ascontiguousarray(R), S, _GENERIC_ROTATION)
+        else:
+            RS = np.einsum("kij,sjl->ksil", R, S)  # (K, S, 3, 3)
+            best = np.einsum("ksij,ij->ks", RS, _GENERIC_ROTATION).argmax(axis=1)
+            R = RS[np.arange(len(R)), best]
     key = np.concatenate(
         [np.round(R.reshape(len(R), 9) / 0.01), np.round(matrices[:, :3, 3] / tolerance)], axis=1
     ).astype(np.int64)  # whole numbers (and -0 is 0)

@@ -702,7 +702,8 @@ def localize_cloud(
     dropped = int((~finite).sum())
     if dropped:
         log.warning("localize_cloud: dropped %d NaN/inf scene points of %d", dropped, len(raw))
-    pts = np.compress(finite, raw, axis=0)
+    # (all finite, the common case: the points as given, no copy of a whole scan)
+    pts = np.compress(finite, raw, axis=0) if dropped else raw
     if len(pts) < 10:
         raise DataError(f"localize_cloud: expected at least 10 finite scene points, got {len(pts)}")
     vp = None if viewpoint is None else np.asarray(viewpoint, dtype=np.float64).reshape(3)

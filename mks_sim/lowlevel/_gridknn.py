@@ -72,7 +72,20 @@ _PROBE_RINGS = 4
 def column_bounds(a: NDArray[Any]) -> tuple[NDArray[Any], NDArray[Any]]:
     """(lo, hi): ``a.min(axis=0)`` and ``a.max(axis=0)`` of a non-empty 2-D array, column by
     column (numpy's axis-0 reduction of an (N, 3) array walks the rows with a 3-wide inner
-    loop, ~20x slower than three contiguous-strided passes; the same values)."""
+    loop, ~20x slower than three contiguous-strided passes; the same values). A finite
+    C-ordered (N, 3) float64 array of 16 rows or more: one compiled pass over the rows
+    (a 43,200-point scan: 0.20 -> 0.05 ms), the same values."""
+    if (
+        a.ndim == 2
+        and a.shape[1] == 3
+        and len(a) >= _COLUMN_MIN_ROWS
+        and a.dtype == np.float64
+        and a.flags.c_contiguous
+        and available()
+    ):
+        lo, hi, total = _load()["column_extrema3"](a)
+        if math.isfinite(total):  # (else a NaN or inf: numpy's rules for those)
+            return lo, hi
     cols = range(a.shape[1])
     return np.array([a[:, d].min() for d in cols]), np.array([a[:, d].max() for d in cols])
 
@@ -122,6 +135,7 @@ def _compile() -> dict[str, Any]:
         "probe_rows": k.probe_rows,
         "radix_order": k.radix_order,
         "column_sums": k.column_sums,
+        "column_extrema3": k.column_extrema3,
         "ball_rows": k.ball_rows,
         "plane_pairs": k.plane_pairs,
         "plane_counts": k.plane_counts,
@@ -209,7 +223,8 @@ def grid_knn(
     dims = _dims(ext, h)
     key = kern["cell_keys"](pts, lo, h, dims)
     ncells = int(dims[0] * dims[1] * dims[2])
-    order = kern["counting_order"](key, ncells) if ncells <= 2 * n else np.argsort(key)
+    # (any order grouping the cells does: each row's answer does not depend on it)
+    order = kern["counting_order"](key, ncells) if ncells <= 2 * n else sort_order(key)
     skey = key[order]
     first = np.flatnonzero(np.r_[True, skey[1:] != skey[:-1]])
     ckey = skey[first]

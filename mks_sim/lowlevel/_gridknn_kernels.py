@@ -469,6 +469,29 @@ def radix_order(keys, bits):
 
 
 @nb.njit(cache=True)
+def column_extrema3(a):
+    """(lo, hi, total) of a C-ordered (N >= 1, 3) array: each column's min and max in one
+    pass (scalars in registers), and the sum of all its values -- not finite when a value
+    is NaN (or inf), which min and max here would not propagate as numpy's do."""
+    l0 = h0 = a[0, 0]
+    l1 = h1 = a[0, 1]
+    l2 = h2 = a[0, 2]
+    total = 0.0
+    for i in range(a.shape[0]):
+        x = a[i, 0]
+        y = a[i, 1]
+        z = a[i, 2]
+        l0 = min(l0, x)
+        h0 = max(h0, x)
+        l1 = min(l1, y)
+        h1 = max(h1, y)
+        l2 = min(l2, z)
+        h2 = max(h2, z)
+        total += (x + y) + z
+    return np.array([l0, l1, l2]), np.array([h0, h1, h2]), total
+
+
+@nb.njit(cache=True)
 def column_sums(a):
     """Column sums of a 2-D array, row after row: numpy's ``a.sum(axis=0)`` of a C-ordered
     array adds in the same order (the same values to the bit), several times slower."""
