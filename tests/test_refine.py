@@ -389,6 +389,32 @@ def test_icp_stall_stops_a_sliding_fit_and_keeps_a_converging_one() -> None:
         assert pos < 5e-5 and rot < 0.05, (stall, pos, rot)
 
 
+def test_symmetric_images_are_the_distinct_non_identity_symmetries() -> None:
+    """``_symmetric_images``: T @ S for each distinct S of the list (equal to 1e-6: rounding
+    noise and a signed zero are the same symmetry), in order of first appearance, the
+    identity left out -- checked against sets built by hand from the cube's rotations."""
+    from scipy.spatial.transform import Rotation
+
+    from mks_sim.models.refine import _symmetric_images
+
+    syms = cube_rotations()
+    rng = np.random.default_rng(43)
+    for trial in range(100):
+        picks = rng.integers(0, len(syms), int(rng.integers(0, 40)))
+        noise = [rng.choice([0.0, 1e-17, -1e-17, 2e-8]) * rng.integers(0, 2, (3, 3)) for _ in picks]
+        related = [syms[i] + e for i, e in zip(picks, noise, strict=True)]
+        T = make_transform(Rotation.random(random_state=trial).as_matrix(), rng.normal(size=3))
+        want: list[int] = []
+        for i in picks:  # distinct, first appearance first, not the identity
+            if i not in want and not np.allclose(syms[i], np.eye(3)):
+                want.append(int(i))
+        got = _symmetric_images(T, related)
+        assert got.shape == (len(want), 4, 4)
+        for image, i in zip(got, want, strict=True):
+            np.testing.assert_allclose(image[:3, :3], T[:3, :3] @ syms[i], atol=1e-6)
+            assert np.array_equal(image[:3, 3], T[:3, 3])
+
+
 @pytest.mark.skipif(not _paths()[-1], reason="needs numba")
 def test_point_to_plane_system_adds_the_pairs_in_order() -> None:
     """The compiled normal equations are the plain sums, pair after pair: Python's own

@@ -580,17 +580,22 @@ def _matching_symmetries(As: Sequence[FloatArray], B: FloatArray, syms: FloatArr
 
 def _symmetric_images(T: FloatArray, related: list[FloatArray]) -> FloatArray:
     """Distinct poses T @ S for the non-identity S in ``related`` (the equivalents)."""
-    out: list[FloatArray] = []
+    out = np.zeros((0, 3, 3))
     if related:
         R = np.asarray(related, dtype=np.float64).reshape(-1, 3, 3)
-        # the symmetries are exact copies of the model's: rounding identifies equal ones
-        _, first = np.unique(np.round(R.reshape(len(R), 9), 6), axis=0, return_index=True)
-        for k in sorted(first):
-            if np.trace(R[k]) < 3.0 - 1e-9:  # not the identity
-                out.append(R[k])
+        # The symmetries are exact copies of the model's: rounding identifies equal ones.
+        # The first of each in order, by a dict of the rounded rows' bytes (+ 0.0 makes
+        # -0.0 the 0.0 it equals): np.unique(axis=0)'s groups, ~10x faster on 24 rows.
+        keys = np.round(R.reshape(len(R), 9), 6) + 0.0
+        seen: dict[bytes, int] = {}
+        for k, row in enumerate(keys):
+            seen.setdefault(row.tobytes(), k)
+        first = np.fromiter(seen.values(), dtype=np.intp, count=len(seen))
+        trace = R[first, 0, 0] + R[first, 1, 1] + R[first, 2, 2]  # (np.trace's order)
+        out = R[first[trace < 3.0 - 1e-9]]  # not the identity
     images = np.repeat(T[None], len(out), axis=0)
-    if out:
-        images[:, :3, :3] = T[:3, :3] @ np.array(out)
+    if len(out):
+        images[:, :3, :3] = T[:3, :3] @ out
     return images.reshape(-1, 4, 4)
 
 
