@@ -399,16 +399,23 @@ def test_full_resolution_polish_leaves_the_table_out() -> None:
     assert np.mean(errors[True]) < 0.5 * np.mean(errors[False]), errors
 
 
-def test_one_spg_gives_the_components_and_the_segments_graphs() -> None:
+@pytest.mark.parametrize("brute", [True, False])
+def test_one_spg_gives_the_components_and_the_segments_graphs(
+    brute: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """localize_cloud builds one thresholded SPG of the object points and takes each
-    component's SPG from it (the rows the threshold cut asked anew): checked against the
-    graphs built directly, on clusters with stray points, ties (a rounded grid) and
-    components whose rows the threshold cut."""
+    component's SPG from it (the rows the threshold cut asked anew: by brute force in the
+    compiled pass, or by the grid): checked against the graphs built directly, to the bit,
+    on clusters with stray points, ties (a rounded grid) and components whose rows the
+    threshold cut."""
     from scipy.sparse import csgraph
 
+    import mks_sim.localization.pipeline as pipeline
     from mks_sim.localization.pipeline import _segment_graph
     from mks_sim.lowlevel.normals import build_graph
 
+    if not brute:
+        monkeypatch.setattr(pipeline, "_BRUTE_CUT_WORK", 0)
     rng = np.random.default_rng(11)
     n_cut = 0
     for trial in range(6):
@@ -441,8 +448,30 @@ def test_one_spg_gives_the_components_and_the_segments_graphs() -> None:
             n_cut += int(np.sum(np.diff(adj.indptr)[members] < 12))
             assert np.array_equal(sub.indptr, own.indptr)
             assert np.array_equal(sub.indices, own.indices)
-            assert np.array_equal(sub.data, own.data)
+            assert sub.data.tobytes() == own.data.tobytes()
     assert n_cut >= 100  # rows the threshold cut were among those answered
+
+
+def test_cut_rows_by_brute_force_give_up_on_a_tie_at_the_mth_neighbour() -> None:
+    """On a lattice the 12th neighbour of a point ties with others left out (the index would
+    have to settle which): the brute-force rows give up (the grid's rule), and
+    _segment_graph still returns the SPG built directly, by the grid or as None."""
+    from mks_sim.localization.pipeline import _segment_graph
+    from mks_sim.lowlevel import _gridknn
+    from mks_sim.lowlevel.normals import build_graph
+
+    if not _gridknn.available():
+        pytest.skip("numba not importable")
+    g = np.arange(7) * 0.001
+    pts = np.stack(np.meshgrid(g, g, [0.0]), axis=-1).reshape(-1, 3)
+    adj = build_graph(pts, m=12, threshold=1e-6).adjacency  # every row cut
+    members = np.arange(len(pts))
+    ok, *_ = _gridknn.induced_rows(adj, members, pts, 12)
+    assert not ok
+    graph = _segment_graph(adj, members, pts, 12)
+    if graph is not None:
+        own = build_graph(pts, m=12).adjacency
+        assert np.array_equal(graph.adjacency.indices, own.indices)
 
 
 def test_plane_pair_poses_compiled_as_by_numpy() -> None:

@@ -987,16 +987,24 @@ def _merge_components(
     return out
 
 
+#: Cut rows x segment points up to which :func:`_segment_graph` answers the cut rows by
+#: brute force (~1 ns a pair; beyond, the grid).
+_BRUTE_CUT_WORK = 500_000
+
+
 def _segment_graph(adj: Any, members: NDArray[np.intp], points: FloatArray, m: int) -> Any:
     """The SPG of one component (sorted ``members``, their ``points``) from the thresholded
     SPG ``adj`` of all the object points: a row the threshold did not cut has its ``m``
     nearest neighbours within the threshold, so in the component, and its induced row is
     its row in the component's own SPG (the same neighbours, the columns renumbered
     monotonically); a row it cut (fewer than ``m``: a stray or fringe point) is asked anew
-    among the component's points, by the SPG's own compiled grid for those rows alone
-    (:func:`~mks_sim.lowlevel._gridknn.grid_knn`). The same graph as building the
-    component's SPG (a 2,000-point segment with 2-120 cut rows: 1.4-3.1 ms to build,
-    0.5-0.7 ms here). (An SPG without the
+    among the component's points: by brute force in the same compiled pass that renumbers
+    the whole rows (:func:`~mks_sim.lowlevel._gridknn.induced_rows`, up to
+    :data:`_BRUTE_CUT_WORK` cut rows x points), else by the SPG's own compiled grid for
+    those rows alone (:func:`~mks_sim.lowlevel._gridknn.grid_knn`). The same graph as
+    building the component's SPG, to the bit (a 2,000-point segment with 2-120 cut rows:
+    1.4-3.1 ms to build, 0.4 ms here; the grid's way 1.2 ms, and 10 of the 112 tuning
+    segments had a row it could not prove, built anew). (An SPG without the
     threshold gave the components as well, but a noisy scan's stray points then had far
     rows, found by brute force: a 1 mm noise cube's grouping 9 -> 17 ms.) None when the
     compiled grid is unavailable or cannot prove a cut row (the caller builds the SPG)."""
@@ -1006,6 +1014,14 @@ def _segment_graph(adj: Any, members: NDArray[np.intp], points: FloatArray, m: i
     n = len(members)
     lens = np.diff(adj.indptr)[members]
     cut = np.flatnonzero(lens < m)
+    if n > m and len(cut) * n <= _BRUTE_CUT_WORK and _gridknn.available():
+        # one compiled pass: the whole rows renumbered, the cut ones by brute force (a
+        # 2,400-point segment with 2-100 cut rows: 1.5 -> 0.2 ms)
+        ok, indptr_c, indices_c, data_c = _gridknn.induced_rows(adj, members, points, m)
+        if ok:
+            graph_c = sparse.csr_array((data_c, indices_c, indptr_c), shape=(n, n))
+            graph_c.has_sorted_indices = True
+            return FixedGraph(graph_c)
     nbr = nd = None
     if len(cut):
         if n <= m or not _gridknn.available():

@@ -38,6 +38,7 @@ __all__ = [
     "column_bounds",
     "column_mean",
     "grid_knn",
+    "induced_rows",
     "median",
     "neighbour_scatter",
     "norm_within",
@@ -136,6 +137,7 @@ def _compile() -> dict[str, Any]:
         "radix_order": k.radix_order,
         "column_sums": k.column_sums,
         "column_extrema3": k.column_extrema3,
+        "induced_rows": k.induced_rows,
         "ball_rows": k.ball_rows,
         "plane_pairs": k.plane_pairs,
         "plane_counts": k.plane_counts,
@@ -259,6 +261,25 @@ def grid_knn(
     finally:
         numba.set_num_threads(old)
     return nbr, dist, lens, done
+
+
+def induced_rows(
+    adj: Any, members: NDArray[np.intp], points: NDArray[np.float64], m: int
+) -> tuple[bool, NDArray[np.int64], NDArray[Any], NDArray[np.float64]]:
+    """The CSR arrays (ok, indptr, indices, data) of the SPG of one component of a
+    thresholded SPG ``adj`` (sorted ``members``, their ``points``): rows of ``m`` entries
+    renumbered, shorter rows (the threshold cut them) the member's ``m`` nearest among the
+    points by brute force, each row in column order
+    (:func:`~mks_sim.lowlevel._gridknn_kernels.induced_rows`); ok is False when a cut row
+    meets a distance tie at its m-th neighbour (the grid gives such a row up too). Needs
+    :func:`available`."""
+    out: tuple[bool, NDArray[np.int64], NDArray[Any], NDArray[np.float64]] = _load()[
+        "induced_rows"
+    ](
+        adj.indptr, adj.indices, adj.data, np.ascontiguousarray(members, dtype=np.int64),
+        np.ascontiguousarray(points, dtype=np.float64), int(m),
+    )  # fmt: skip
+    return out
 
 
 def probe_knn(

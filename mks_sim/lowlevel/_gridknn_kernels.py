@@ -1067,3 +1067,118 @@ def face_support(points, ridx, rstart, cands, triples, n_regions):
             w = max(w, math.sqrt(best))
         worst[c] = w
     return worst
+
+
+@nb.njit(cache=True)
+def _brute_row(points, q, m, best_d2, best_i, best_d):
+    """The m nearest of the (N > m, 3) points to point q (itself left out) by (distance,
+    index), the distance ``sqrt((dx*dx + dy*dy) + dz*dz)`` as the grid's rows take it, into
+    ``best_i``/``best_d`` nearest first; False (as the grid gives a row up) when a point left
+    out is as far as the m-th (a tie the index would settle among more than m)."""
+    n = points.shape[0]
+    qx = points[q, 0]
+    qy = points[q, 1]
+    qz = points[q, 2]
+    cnt = 0
+    for j in range(n):
+        if j == q:
+            continue
+        dx = qx - points[j, 0]
+        dy = qy - points[j, 1]
+        dz = qz - points[j, 2]
+        e2 = (dx * dx + dy * dy) + dz * dz
+        if cnt == m:
+            if e2 >= best_d2[m - 1]:  # (an equal square: the later index loses)
+                continue
+            k = m - 1
+        else:
+            k = cnt
+            cnt += 1
+        while k > 0 and best_d2[k - 1] > e2:
+            best_d2[k] = best_d2[k - 1]
+            best_i[k] = best_i[k - 1]
+            k -= 1
+        best_d2[k] = e2
+        best_i[k] = j
+    # a point left out as far as the m-th: its square at least the largest kept, its sqrt
+    # the same (distinct squares may share a sqrt)
+    top = best_d2[m - 1]
+    d_top = math.sqrt(top)
+    hi = top * (1.0 + 1e-15) + 1e-300
+    for j in range(n):
+        if j == q:
+            continue
+        dx = qx - points[j, 0]
+        dy = qy - points[j, 1]
+        dz = qz - points[j, 2]
+        e2 = (dx * dx + dy * dy) + dz * dz
+        if top <= e2 <= hi and math.sqrt(e2) == d_top:
+            kept = False
+            for k in range(m):
+                if best_i[k] == j:
+                    kept = True
+            if not kept:
+                return False
+    # runs of one distance (distinct squares may share a sqrt) by index
+    for k in range(m):
+        best_d[k] = math.sqrt(best_d2[k])
+    for k in range(1, m):
+        u = k
+        while u > 0 and best_d[u - 1] == best_d[u] and best_i[u - 1] > best_i[u]:
+            best_i[u - 1], best_i[u] = best_i[u], best_i[u - 1]
+            best_d[u - 1], best_d[u] = best_d[u], best_d[u - 1]
+            u -= 1
+    return True
+
+
+@nb.njit(cache=True)
+def induced_rows(indptr, indices, data, members, points, m):
+    """The CSR rows of the SPG of a component (sorted ``members`` of a thresholded SPG
+    ``indptr``/``indices``/``data``, their ``points``): a row with ``m`` entries is the
+    member's row, columns renumbered (monotonically: they stay ascending); a shorter row
+    (cut by the threshold) is the member's ``m`` nearest among ``points`` by brute force,
+    in column order. Returns ``(ok, indptr, indices, data)``; ok is False when a cut row
+    meets a distance tie it does not settle (the caller takes another way)."""
+    n = members.shape[0]
+    renumber = np.full(indptr.shape[0] - 1, -1, np.int64)
+    for k in range(n):
+        renumber[members[k]] = k
+    out_ptr = np.zeros(n + 1, np.int64)
+    for k in range(n):
+        i = members[k]
+        ln = indptr[i + 1] - indptr[i]
+        out_ptr[k + 1] = out_ptr[k] + (ln if ln >= m else m)
+    total = out_ptr[n]
+    out_ind = np.empty(total, indices.dtype)
+    out_dat = np.empty(total, data.dtype)
+    best_d2 = np.empty(m)
+    best_i = np.empty(m, np.int64)
+    best_d = np.empty(m)
+    for k in range(n):
+        i = members[k]
+        a = indptr[i]
+        ln = indptr[i + 1] - a
+        o = out_ptr[k]
+        if ln >= m:
+            for e in range(ln):
+                out_ind[o + e] = renumber[indices[a + e]]
+                out_dat[o + e] = data[a + e]
+            continue
+        if not _brute_row(points, k, m, best_d2, best_i, best_d):
+            return False, out_ptr, out_ind, out_dat
+        # column order (the m nearest are distinct points: a plain insertion sort)
+        for u in range(m):
+            v = u
+            while v > 0 and best_i[v - 1] > best_i[u]:
+                v -= 1
+            ci = best_i[u]
+            cd = best_d[u]
+            for w in range(u, v, -1):
+                best_i[w] = best_i[w - 1]
+                best_d[w] = best_d[w - 1]
+            best_i[v] = ci
+            best_d[v] = cd
+        for u in range(m):
+            out_ind[o + u] = best_i[u]
+            out_dat[o + u] = best_d[u]
+    return True, out_ptr, out_ind, out_dat
