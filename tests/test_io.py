@@ -275,6 +275,20 @@ def test_extent_of_a_dense_cloud_matches_its_full_percentile_box() -> None:
     assert extent(small) == float(np.linalg.norm(hi - lo))  # small clouds: every point
 
 
+def test_extent_percentiles_are_numpys() -> None:
+    """``extent``'s 2nd and 98th percentiles (one partition per column and numpy's linear
+    interpolation) equal ``np.percentile``'s, on short and long clouds, with ties."""
+    from mks_sim.io.units import _percentiles
+
+    rng = np.random.default_rng(6)
+    for trial in range(400):
+        p = rng.normal(size=(int(rng.integers(2, 5000)), 3)) * 10.0 ** rng.integers(-4, 4)
+        if trial % 3 == 0:
+            p = np.round(p, 1)  # ties
+        for q in (0.02, 0.98):
+            np.testing.assert_array_equal(_percentiles(p, q), np.percentile(p, 100 * q, axis=0))
+
+
 # --------------------------------------------------------------------------- issue 12
 
 

@@ -6,10 +6,11 @@ A model built in millimetres matched against a scan in metres finds nothing and 
 
 from __future__ import annotations
 
+import functools
 import logging
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from mks_sim.errors import DataError
 
@@ -29,13 +30,42 @@ def extent(points: ArrayLike) -> float:
     stride would alias with the rows of an organised scan)."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if len(p) > 4000:
-        p = p[np.random.default_rng(0).integers(0, len(p), 4000)]
+        p = p[_sample(len(p))]
     # (per column and compress: an axis-1 all and a mask's row gather are several times slower)
     p = np.compress(np.isfinite(p[:, 0]) & np.isfinite(p[:, 1]) & np.isfinite(p[:, 2]), p, axis=0)
     if len(p) < 2:
         return 0.0
-    lo, hi = np.percentile(p, [2, 98], axis=0)
+    lo, hi = _percentiles(p, 0.02), _percentiles(p, 0.98)
     return float(np.linalg.norm(hi - lo))
+
+
+@functools.lru_cache(maxsize=8)
+def _sample(n: int) -> NDArray[np.intp]:
+    """The 4,000 rows of an n-point cloud :func:`extent` reads (drawn once per size, with
+    the fixed seed: a generator's set-up cost more than the percentiles)."""
+    rows: NDArray[np.intp] = np.random.default_rng(0).integers(0, n, 4000)
+    rows.setflags(write=False)
+    return rows
+
+
+def _percentiles(p: NDArray[np.float64], q: float) -> NDArray[np.float64]:
+    """``np.percentile(p, 100 q, axis=0)`` of finite (N >= 2, 3) points, to the bit (a
+    zero's sign aside: which of -0.0 and 0.0 a partition puts first): the two order
+    statistics around the virtual index ``(N - 1) q`` of each column by one partition, and
+    numpy's linear interpolation between them (from the upper one when the weight is at
+    least a half), 2x faster than numpy's general path."""
+    n = len(p)
+    virtual = (n - 1) * q
+    below = int(np.floor(virtual))
+    above = min(below + 1, n - 1)
+    gamma = virtual - below
+    out = np.empty(p.shape[1])
+    for d in range(p.shape[1]):
+        col = np.partition(p[:, d], [below, above])
+        a, b = col[below], col[above]
+        diff = b - a
+        out[d] = b - diff * (1 - gamma) if gamma >= 0.5 else a + diff * gamma
+    return out
 
 
 def require_spread(points: ArrayLike, where: str, *, min_points: int = 3) -> None:
