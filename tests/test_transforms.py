@@ -202,6 +202,31 @@ def test_pose_hypothesis_many_equals_one_by_one() -> None:
             assert h.correspondences.dtype == np.int64 and not h.correspondences.flags.writeable
 
 
+def test_pose_hypothesis_many_takes_the_pairs_in_one_array_with_their_counts() -> None:
+    """``many(..., pairs, pair_counts)``: the same hypotheses as one array of pairs per
+    hypothesis, read-only and safe from the caller's later changes; counts that do not
+    add up to the pairs, or are not one per hypothesis, are refused."""
+    rng = np.random.default_rng(4)
+    mats = np.stack([make_transform(random_rotation(rng), rng.normal(size=3)) for _ in range(5)])
+    refs = rng.normal(size=(5, 3))
+    votes = [4, 3, 3, 1, 0]
+    counts = [2, 0, 3, 1, 4]
+    each = [rng.integers(0, 9, size=(c, 2)) for c in counts]
+    flat = np.concatenate(each).astype(np.int32)
+    got = PoseHypothesis.many(mats, refs, votes, flat, counts)
+    flat[...] = -1  # the caller's array may change later
+    want = PoseHypothesis.many(mats, refs, votes, each)
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_array_equal(g.correspondences, w.correspondences)
+        assert g.correspondences.dtype == np.int64 and not g.correspondences.flags.writeable
+        np.testing.assert_array_equal(g.matrix, w.matrix)
+        assert g.votes == w.votes
+    with pytest.raises(DataError, match="pair counts"):
+        PoseHypothesis.many(mats, refs, votes, np.concatenate(each), [2, 0, 3, 1, 3])
+    with pytest.raises(DataError, match="pair counts"):
+        PoseHypothesis.many(mats, refs, votes, np.concatenate(each), [2, 0, 3, 5])
+
+
 def test_rotation_from_covariance_batched_recovers_rotations_and_matches_single() -> None:
     """Batched Kabsch: K random rotations recovered from noise-free pairs, each equal to the
     one-matrix call, det +1 even for a reflection's covariance."""

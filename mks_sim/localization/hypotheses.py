@@ -556,20 +556,29 @@ def vertex_hypotheses(
     sub = scene_points[:: max(1, len(scene_points) // 100)]
     top = sorted(out, key=lambda o: -o[0])[:keep]
     rows = [k for k, o in enumerate(top) if o[2].ndim == 1]
+    mats = np.stack([o[1] for o in top])
+    # one quick score per distinct placement (poses equal up to a model symmetry share it)
+    first, inverse = _distinct_placements(mats, model.symmetries(), vote_distance / 2)
+    quick = batch_inlier_fractions(model.surface, sub, mats[first], vote_distance / 2)[inverse]
+    order = sorted(range(len(top)), key=lambda k: (-top[k][0], -quick[k]))
+    ref = model.vertexes.mean(axis=0)
+    refs = np.einsum("kij,j->ki", mats[:, :3, :3], ref) + mats[:, :3, 3]  # (K, 3)
+    ranked_votes = [top[k][0] for k in order]
+    if len(rows) == len(top):
+        # every pose a corner's: its pairs in the hypotheses' order, in one array (the
+        # hypotheses' correspondences are views of it)
+        pairs, counts = _corner_pairs(np.stack([o[2] for o in top]), len(detected))
+        starts = np.cumsum(counts) - counts
+        counts = counts[order]
+        take = np.repeat(starts[order] - (np.cumsum(counts) - counts), counts)
+        take += np.arange(len(take))
+        return PoseHypothesis.many(mats[order], refs[order], ranked_votes, pairs[take], counts)
     corr: dict[int, NDArray[np.int64]] = {}
     if rows:
         found = _corner_correspondences(np.stack([top[k][2] for k in rows]), len(detected))
         corr = dict(zip(rows, found, strict=True))
-    by_votes = [(v, T, corr.get(k, c)) for k, (v, T, c) in enumerate(top)]
-    mats = np.stack([o[1] for o in by_votes])
-    # one quick score per distinct placement (poses equal up to a model symmetry share it)
-    first, inverse = _distinct_placements(mats, model.symmetries(), vote_distance / 2)
-    quick = batch_inlier_fractions(model.surface, sub, mats[first], vote_distance / 2)[inverse]
-    order = sorted(range(len(by_votes)), key=lambda k: (-by_votes[k][0], -quick[k]))
-    ref = model.vertexes.mean(axis=0)
-    refs = np.einsum("kij,j->ki", mats[:, :3, :3], ref) + mats[:, :3, 3]  # (K, 3)
     return PoseHypothesis.many(
-        mats[order], refs[order], [by_votes[k][0] for k in order], [by_votes[k][2] for k in order]
+        mats[order], refs[order], ranked_votes, [corr.get(k, top[k][2]) for k in order]
     )
 
 
@@ -628,6 +637,15 @@ def _corner_correspondences(j: NDArray[np.intp], n_detected: int) -> list[NDArra
     """Per row of ``j`` (K, V) -- the detected vertex each model corner landed on
     (``n_detected``: none) -- the (C, 2) (detected vertex, model corner) pairs, the first
     corner per detected vertex, ordered by detected vertex (all rows in a few array calls)."""
+    pairs, counts = _corner_pairs(j, n_detected)
+    return np.split(pairs, np.cumsum(counts)[:-1])
+
+
+def _corner_pairs(
+    j: NDArray[np.intp], n_detected: int
+) -> tuple[NDArray[np.int64], NDArray[np.intp]]:
+    """:func:`_corner_correspondences`' pairs of all the rows one after another, and the
+    (K,) count of each row's."""
     n_rows, n_corners = j.shape
     first = np.full((n_rows, n_detected + 1), n_corners, dtype=np.int64)
     rows = np.arange(n_rows)
@@ -635,7 +653,7 @@ def _corner_correspondences(j: NDArray[np.intp], n_detected: int) -> list[NDArra
         first[rows, np.minimum(j[:, v], n_detected)] = v
     r, dv = np.nonzero(first[:, :n_detected] < n_corners)
     pairs = np.column_stack([dv, first[r, dv]]).astype(np.int64)
-    return np.split(pairs, np.cumsum(np.bincount(r, minlength=n_rows))[:-1])
+    return pairs, np.bincount(r, minlength=n_rows)
 
 
 def _frame(a: FloatArray, b: FloatArray) -> FloatArray:
