@@ -124,13 +124,15 @@ def plane_vertexes(
         normals = np.stack([p.normal for p in planes])
         offsets = np.array([p.offset for p in planes])
         N = normals[triples]  # (C, 3, 3)
-        pair_sin = np.stack(
-            [
-                np.linalg.norm(np.cross(N[:, a], N[:, b]), axis=1)
-                for a, b in ((0, 1), (0, 2), (1, 2))
-            ],
-            axis=1,
-        )  # (C, 3)
+        # |n_a x n_b| of each pair: np.cross's products and differences and the norm's
+        # three squares in order, on columns (the same values, without np.cross's dispatch)
+        x, y, z = N[..., 0], N[..., 1], N[..., 2]  # (C, 3) each
+        pair_sin = np.empty((len(N), 3))
+        for k, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
+            c0 = y[:, a] * z[:, b] - z[:, a] * y[:, b]
+            c1 = z[:, a] * x[:, b] - x[:, a] * z[:, b]
+            c2 = x[:, a] * y[:, b] - y[:, a] * x[:, b]
+            pair_sin[:, k] = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
         ok = (pair_sin.min(axis=1) >= sin_min) & (np.abs(np.linalg.det(N)) >= sin_min * sin_min)
         V = np.linalg.solve(N[ok], offsets[triples[ok]][..., None])[..., 0]  # (C', 3)
         cands = [(v, (int(t[0]), int(t[1]), int(t[2]))) for v, t in zip(V, triples[ok])]
