@@ -367,6 +367,37 @@ def column_keys(pts, lo, h, nx, ny):
     return out
 
 
+@nb.njit(cache=True)
+def _rank_run(qx, qy, qz, sx, sy, sz, order, s0, s1, k, best_d2, best_i, cnt):
+    """The sorted points s0 .. s1 ranked into the k best by (squared distance, index) of
+    the query (``cnt`` of them held); returns the new count. Once k are held, a point
+    farther than the k-th is passed over before its index is read."""
+    for s in range(s0, s1):
+        dx = qx - sx[s]
+        dy = qy - sy[s]
+        dz = qz - sz[s]
+        e2 = (dx * dx + dy * dy) + dz * dz
+        if cnt == k:
+            worst = best_d2[k - 1]
+            if e2 > worst:
+                continue
+            j = order[s]
+            if e2 == worst and j > best_i[k - 1]:
+                continue
+            u = k - 1
+        else:
+            j = order[s]
+            u = cnt
+            cnt += 1
+        while u > 0 and (best_d2[u - 1] > e2 or (best_d2[u - 1] == e2 and best_i[u - 1] > j)):
+            best_d2[u] = best_d2[u - 1]
+            best_i[u] = best_i[u - 1]
+            u -= 1
+        best_d2[u] = e2
+        best_i[u] = j
+    return cnt
+
+
 @nb.njit(cache=True, parallel=True)
 def probe_rows(
     pts, sx, sy, sz, rows, k, lo, h, nx, ny, start, order, margin, max_ring, max_block, out_d,
@@ -379,8 +410,10 @@ def probe_rows(
     left not done; a far outlier that stretches the grid leaves the dense rest to a tree).
 
     Each ring ranks only the columns the last one did not (the k best by (distance, index)
-    do not depend on the order they are met in); chunks of probes run in parallel, each
-    probe's answer the same whichever thread runs it."""
+    do not depend on the order they are met in), an x's columns as one or two runs of the
+    sorted points (1,500 probes of a 43,200-point scan: 0.95 -> 0.82 ms against column by
+    column); chunks of probes run in parallel, each probe's answer the same whichever
+    thread runs it."""
     n_rows = rows.shape[0]
     nchunk = max(1, min((n_rows + 63) // 64, 8))
     size = (n_rows + nchunk - 1) // nchunk
@@ -410,34 +443,23 @@ def probe_rows(
                 if total > max_block:
                     break
                 for x in range(x0, x1 + 1):
-                    inner = px0 <= x <= px1
-                    for y in range(y0, y1 + 1):
-                        if inner and py0 <= y <= py1:
-                            continue  # ranked by the last ring
-                        col = x * ny + y
-                        for s in range(start[col], start[col + 1]):
-                            dx = qx - sx[s]
-                            dy = qy - sy[s]
-                            dz = qz - sz[s]
-                            e2 = (dx * dx + dy * dy) + dz * dz
-                            j = order[s]
-                            if cnt == k:
-                                if e2 > best_d2[k - 1] or (
-                                    e2 == best_d2[k - 1] and j > best_i[k - 1]
-                                ):
-                                    continue
-                                u = k - 1
-                            else:
-                                u = cnt
-                                cnt += 1
-                            while u > 0 and (
-                                best_d2[u - 1] > e2 or (best_d2[u - 1] == e2 and best_i[u - 1] > j)
-                            ):
-                                best_d2[u] = best_d2[u - 1]
-                                best_i[u] = best_i[u - 1]
-                                u -= 1
-                            best_d2[u] = e2
-                            best_i[u] = j
+                    # (x, y0 .. y1) is one run of the sorted columns; the last ring's
+                    # columns of this x (ranked) split it in two
+                    base = x * ny
+                    if px0 <= x <= px1:
+                        cnt = _rank_run(
+                            qx, qy, qz, sx, sy, sz, order, start[base + y0], start[base + py0],
+                            k, best_d2, best_i, cnt,
+                        )  # fmt: skip
+                        cnt = _rank_run(
+                            qx, qy, qz, sx, sy, sz, order, start[base + py1 + 1],
+                            start[base + y1 + 1], k, best_d2, best_i, cnt,
+                        )  # fmt: skip
+                    else:
+                        cnt = _rank_run(
+                            qx, qy, qz, sx, sy, sz, order, start[base + y0],
+                            start[base + y1 + 1], k, best_d2, best_i, cnt,
+                        )  # fmt: skip
                 px0 = x0
                 px1 = x1
                 py0 = y0
