@@ -943,25 +943,13 @@ def voxel_means(points, voxel, shift):
     highest cells are those of the coordinates' bounds (the cell of a coordinate never
     decreases with it)."""
     n = points.shape[0]
-    mn0 = mx0 = points[0, 0]
-    mn1 = mx1 = points[0, 1]
-    mn2 = mx2 = points[0, 2]
-    for i in range(1, n):
-        x = points[i, 0]
-        y = points[i, 1]
-        z = points[i, 2]
-        mn0 = min(mn0, x)
-        mx0 = max(mx0, x)
-        mn1 = min(mn1, y)
-        mx1 = max(mx1, y)
-        mn2 = min(mn2, z)
-        mx2 = max(mx2, z)
-    lo0 = math.floor(mn0 / voxel + shift)
-    lo1 = math.floor(mn1 / voxel + shift)
-    lo2 = math.floor(mn2 / voxel + shift)
-    s0 = math.floor(mx0 / voxel + shift) - lo0 + 1
-    s1 = math.floor(mx1 / voxel + shift) - lo1 + 1
-    s2 = math.floor(mx2 / voxel + shift) - lo2 + 1
+    mn, mx, _ = column_extrema3(points)
+    lo0 = math.floor(mn[0] / voxel + shift)
+    lo1 = math.floor(mn[1] / voxel + shift)
+    lo2 = math.floor(mn[2] / voxel + shift)
+    s0 = math.floor(mx[0] / voxel + shift) - lo0 + 1
+    s1 = math.floor(mx[1] / voxel + shift) - lo1 + 1
+    s2 = math.floor(mx[2] / voxel + shift) - lo2 + 1
     if float(s0) * float(s1) * float(s2) >= 2.0**62:
         return np.empty((0, 3)), False
     keys = voxel_keys(points, voxel, shift, lo0, lo1, lo2, s1, s2)
