@@ -201,6 +201,18 @@ def lower_bound(a, v, lo_, hi_):
     return lo_
 
 
+@nb.njit(cache=True, inline="always")
+def _insert_ranked(best_d2, best_i, u, e2, j):
+    """Insert (e2, j) into the ranked ``best_d2``/``best_i`` at slot ``u`` or before, by
+    (squared distance, index); the entries from its place to ``u - 1`` move up one."""
+    while u > 0 and (best_d2[u - 1] > e2 or (best_d2[u - 1] == e2 and best_i[u - 1] > j)):
+        best_d2[u] = best_d2[u - 1]
+        best_i[u] = best_i[u - 1]
+        u -= 1
+    best_d2[u] = e2
+    best_i[u] = j
+
+
 @nb.njit(cache=True)
 def cell_rows(
     c, sx, sy, sz, sidx, ccoord, ckey, cstart, colptr, todo, lo, h, dims, m, thr, ring,
@@ -305,12 +317,7 @@ def cell_rows(
             else:
                 k = cnt
                 cnt += 1
-            while k > 0 and (best_d2[k - 1] > e2 or (best_d2[k - 1] == e2 and best_i[k - 1] > j)):
-                best_d2[k] = best_d2[k - 1]
-                best_i[k] = best_i[k - 1]
-                k -= 1
-            best_d2[k] = e2
-            best_i[k] = j
+            _insert_ranked(best_d2, best_i, k, e2, j)
             if cnt == m:
                 lim2 = min(lim2, best_d2[m - 1])
         # The SPG ranks by (distance, index): distinct squares may share a sqrt. Reorder such
@@ -389,12 +396,7 @@ def _rank_run(qx, qy, qz, sx, sy, sz, order, s0, s1, k, best_d2, best_i, cnt):
             j = order[s]
             u = cnt
             cnt += 1
-        while u > 0 and (best_d2[u - 1] > e2 or (best_d2[u - 1] == e2 and best_i[u - 1] > j)):
-            best_d2[u] = best_d2[u - 1]
-            best_i[u] = best_i[u - 1]
-            u -= 1
-        best_d2[u] = e2
-        best_i[u] = j
+        _insert_ranked(best_d2, best_i, u, e2, j)
     return cnt
 
 
@@ -1104,12 +1106,7 @@ def _brute_row(points, q, m, best_d2, best_i, best_d):
         else:
             k = cnt
             cnt += 1
-        while k > 0 and best_d2[k - 1] > e2:
-            best_d2[k] = best_d2[k - 1]
-            best_i[k] = best_i[k - 1]
-            k -= 1
-        best_d2[k] = e2
-        best_i[k] = j
+        _insert_ranked(best_d2, best_i, k, e2, j)  # (j ascending: an equal square goes after)
     # a point left out as far as the m-th: its square at least the largest kept, its sqrt
     # the same (distinct squares may share a sqrt)
     top = best_d2[m - 1]
