@@ -1085,8 +1085,9 @@ def face_support(points, ridx, rstart, cands, triples, n_regions):
 def _brute_row(points, q, m, best_d2, best_i, best_d):
     """The m nearest of the (N > m, 3) points to point q (itself left out) by (distance,
     index), the distance ``sqrt((dx*dx + dy*dy) + dz*dz)`` as the grid's rows take it, into
-    ``best_i``/``best_d`` nearest first; False (as the grid gives a row up) when a point left
-    out is as far as the m-th (a tie the index would settle among more than m)."""
+    ``best_i``/``best_d`` (by squared distance: the caller orders them by index); False (as
+    the grid gives a row up) when a point left out is as far as the m-th (a tie the index
+    would settle among more than m)."""
     n = points.shape[0]
     qx = points[q, 0]
     qy = points[q, 1]
@@ -1126,15 +1127,8 @@ def _brute_row(points, q, m, best_d2, best_i, best_d):
                     kept = True
             if not kept:
                 return False
-    # runs of one distance (distinct squares may share a sqrt) by index
     for k in range(m):
         best_d[k] = math.sqrt(best_d2[k])
-    for k in range(1, m):
-        u = k
-        while u > 0 and best_d[u - 1] == best_d[u] and best_i[u - 1] > best_i[u]:
-            best_i[u - 1], best_i[u] = best_i[u], best_i[u - 1]
-            best_d[u - 1], best_d[u] = best_d[u], best_d[u - 1]
-            u -= 1
     return True
 
 
