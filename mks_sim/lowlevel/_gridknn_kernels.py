@@ -1082,24 +1082,25 @@ def face_support(points, ridx, rstart, cands, triples, n_regions):
 
 
 @nb.njit(cache=True)
-def _brute_row(points, q, m, best_d2, best_i, best_d):
+def _brute_row(points, q, m, d2, best_d2, best_i, best_d):
     """The m nearest of the (N > m, 3) points to point q (itself left out) by (distance,
     index), the distance ``sqrt((dx*dx + dy*dy) + dz*dz)`` as the grid's rows take it, into
-    ``best_i``/``best_d`` (by squared distance: the caller orders them by index); False (as
-    the grid gives a row up) when a point left out is as far as the m-th (a tie the index
-    would settle among more than m)."""
+    ``best_i``/``best_d`` (by squared distance: the caller orders them by index; ``d2``:
+    (N,) scratch); False (as the grid gives a row up) when a point left out is as far as
+    the m-th (a tie the index would settle among more than m)."""
     n = points.shape[0]
     qx = points[q, 0]
     qy = points[q, 1]
     qz = points[q, 2]
     cnt = 0
     for j in range(n):
-        if j == q:
-            continue
         dx = qx - points[j, 0]
         dy = qy - points[j, 1]
         dz = qz - points[j, 2]
         e2 = (dx * dx + dy * dy) + dz * dz
+        d2[j] = e2
+        if j == q:
+            continue
         if cnt == m:
             if e2 >= best_d2[m - 1]:  # (an equal square: the later index loses)
                 continue
@@ -1114,13 +1115,7 @@ def _brute_row(points, q, m, best_d2, best_i, best_d):
     d_top = math.sqrt(top)
     hi = top * (1.0 + 1e-15) + 1e-300
     for j in range(n):
-        if j == q:
-            continue
-        dx = qx - points[j, 0]
-        dy = qy - points[j, 1]
-        dz = qz - points[j, 2]
-        e2 = (dx * dx + dy * dy) + dz * dz
-        if top <= e2 <= hi and math.sqrt(e2) == d_top:
+        if j != q and top <= d2[j] <= hi and math.sqrt(d2[j]) == d_top:
             kept = False
             for k in range(m):
                 if best_i[k] == j:
@@ -1155,6 +1150,7 @@ def induced_rows(indptr, indices, data, members, points, m):
     best_d2 = np.empty(m)
     best_i = np.empty(m, np.int64)
     best_d = np.empty(m)
+    d2 = np.empty(n)
     for k in range(n):
         i = members[k]
         a = indptr[i]
@@ -1165,7 +1161,7 @@ def induced_rows(indptr, indices, data, members, points, m):
                 out_ind[o + e] = renumber[indices[a + e]]
                 out_dat[o + e] = data[a + e]
             continue
-        if not _brute_row(points, k, m, best_d2, best_i, best_d):
+        if not _brute_row(points, k, m, d2, best_d2, best_i, best_d):
             return False, out_ptr, out_ind, out_dat
         # column order (the m nearest are distinct points: a plain insertion sort)
         for u in range(m):
