@@ -400,7 +400,8 @@ def test_compiled_one_ring_covariances_equal_the_sparse_products_to_the_bit() ->
 
 def test_compiled_ring_moments_do_not_depend_on_the_threads() -> None:
     """The parallel kernel gives the same moments, to the bit, on one thread and on all,
-    and on any number of chunks (each point's ring and sums are its own arithmetic)."""
+    and on any number of chunks (each point's ring and sums are its own arithmetic; 4 and 5
+    threads cut 6 chunks to a multiple of the threads)."""
     import numba
 
     from mks_sim.lowlevel import _gridknn
@@ -419,7 +420,7 @@ def test_compiled_ring_moments_do_not_depend_on_the_threads() -> None:
         numba.set_num_threads(1)
         one = ring_moments(*args, 2, 1)
         numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        runs = [ring_moments(*args, 2, t) for t in (1, 2, 3, 8)]
+        runs = [ring_moments(*args, 2, t) for t in (1, 2, 3, 4, 5, 8)]
     finally:
         numba.set_num_threads(before)
     assert all(np.array_equal(r, one) for r in runs)
