@@ -308,11 +308,15 @@ def test_spacing_and_noise_match_a_brute_force_on_a_noisy_plane() -> None:
     assert 0.0018 < spacing < 0.0022 and 0.5e-4 < noise < 1.5e-4
 
 
-def test_probe_knn_matches_brute_force_and_leaves_far_rows_to_the_tree() -> None:
+def test_probe_knn_matches_brute_force_and_leaves_far_rows_to_the_tree(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """The column grid's rows are a brute force's k nearest (the probe first, distances to
     the last bit); a probe far from everything (2 m off a 20 cm scan) is not proven within the
     rings and is left not done, and so are rows whose blocks a far outlier crowds;
-    spacing_and_noise then asks a tree for them and returns what a tree alone gives."""
+    spacing_and_noise then answers them by a pass over all the points each (no tree is
+    built) or, past ``_BRUTE_WORK`` distances, by a tree, and returns what a tree alone
+    gives either way."""
     from scipy.spatial import cKDTree
 
     from mks_sim.localization.representation import spacing_and_noise
@@ -343,17 +347,44 @@ def test_probe_knn_matches_brute_force_and_leaves_far_rows_to_the_tree() -> None
         numba.set_num_threads(old)
     assert np.array_equal(done1, done) and np.array_equal(idx1[done], idx[done])
     assert np.array_equal(d1[done], d[done])
+    # the rows left, by one pass over the points each: a tree's answers, to the bit
+    bd, bi = _gridknn.brute_knn(pts, rows, 12)
+    td, ti = cKDTree(pts).query(pts[rows], k=12)
+    np.testing.assert_array_equal(bi[:-1], want[:-1])
+    np.testing.assert_array_equal(bi[-1], ti[-1])
+    np.testing.assert_array_equal(bd[-1], td[-1])
+    import mks_sim.localization.representation as rep
+
     tree = cKDTree(pts)
-    for probes in (300, 20000):  # probes drawn, and every point a probe
-        with_tree = spacing_and_noise(pts, np.random.default_rng(1), tree, probes=probes)
-        assert spacing_and_noise(pts, np.random.default_rng(1), probes=probes) == with_tree
     # one point 1 km off stretches the grid: the scan crowds a few columns, so its rows are
-    # left to the tree rather than ranked against thousands of points each
+    # left not done rather than ranked against thousands of points each
     stretched = np.vstack([pts[:-2], [[1000.0, 1000.0, 0.0]]])
     _, _, done = _gridknn.probe_knn(stretched, rows[:-1], 12)
     assert not done.any()
-    with_tree = spacing_and_noise(stretched, np.random.default_rng(1), cKDTree(stretched))
-    assert spacing_and_noise(stretched, np.random.default_rng(1)) == with_tree
+    stretched_tree = cKDTree(stretched)
+    with_tree = [
+        spacing_and_noise(pts, np.random.default_rng(1), tree, probes=probes)
+        for probes in (300, 20000)  # probes drawn, and every point a probe
+    ] + [spacing_and_noise(stretched, np.random.default_rng(1), stretched_tree)]
+    built: list[int] = []
+    real_tree = rep._tree
+
+    def counted(points: np.ndarray) -> cKDTree:
+        built.append(len(points))
+        return real_tree(points)
+
+    monkeypatch.setattr(rep, "_tree", counted)
+    for work in (rep._BRUTE_WORK, 0):  # passes for the rows left; then trees for them
+        monkeypatch.setattr(rep, "_BRUTE_WORK", work)
+        built.clear()
+        got = [
+            spacing_and_noise(pts, np.random.default_rng(1), probes=probes)
+            for probes in (300, 20000)
+        ] + [spacing_and_noise(stretched, np.random.default_rng(1))]
+        assert got == with_tree
+        # the far rows of the first two by passes; the stretched scan leaves all its 1500
+        # probes (11 million distances): a tree
+        assert len(built) >= 2 if work == 0 else built == [len(stretched)]
 
 
 def test_compiled_plane_counts_equal_the_products() -> None:

@@ -47,6 +47,10 @@ IntArray = NDArray[np.intp]
 #: Object points from which the SPG is built by the compiled grid kernel (when numba
 #: imports), as the normals' and the region growing's kernels (500 points).
 _GRID_MIN_POINTS = 500
+#: Most point distances (rows x points) the statistics' probes that the column grid left
+#: not done are answered with by brute force (:func:`~mks_sim.lowlevel._gridknn.brute_knn`)
+#: rather than by a k-d tree of all the points.
+_BRUTE_WORK = 5_000_000
 
 
 @dataclass(frozen=True)
@@ -134,7 +138,9 @@ def spacing_and_noise(
     Without a ``tree``, the probes' neighbours come from the compiled column grid
     (:func:`mks_sim.lowlevel._gridknn.probe_knn`, the same neighbours as a tree's query:
     the workstation's 23,700-point scan in 1.2 ms against 3.5 for a tree's build and query)
-    when numba imports; a tree answers the rows it leaves, or all of them without numba.
+    when numba imports; the few rows it leaves (a probe far from the rest) are answered by
+    a pass over all the points each (:func:`mks_sim.lowlevel._gridknn.brute_knn`), many by
+    a tree; without numba a tree answers them all.
     """
     n = len(points)
     sel = None if n <= probes else rng.choice(n, probes, replace=False)
@@ -148,7 +154,13 @@ def spacing_and_noise(
         d, idx, done = _gridknn.probe_knn(points, rows, k)
         if not done.all():
             left = np.flatnonzero(~done)
-            d[left], idx[left] = _tree(points).query(probe[left], k=k)
+            if len(left) * n <= _BRUTE_WORK:
+                # a few far probes: one pass over the points each, not a tree of them all
+                # (4 of the 112 localizations of benchmarks/localize.py left one probe:
+                # the tree cost them 5-37 ms, the pass well under 1)
+                d[left], idx[left] = _gridknn.brute_knn(points, rows[left], k)
+            else:
+                d[left], idx[left] = _tree(points).query(probe[left], k=k)
     else:
         d, idx = (tree if tree is not None else _tree(points)).query(probe, k=k)
     spacing = float(np.median(d[:, 1])) if k > 1 else 0.0

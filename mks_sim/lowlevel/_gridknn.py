@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 __all__ = [
     "available",
     "ball_rows",
+    "brute_knn",
     "column_bounds",
     "column_mean",
     "grid_knn",
@@ -134,6 +135,7 @@ def _compile() -> dict[str, Any]:
         "knn": k.knn_cells,
         "column_keys": k.column_keys,
         "probe_rows": k.probe_rows,
+        "brute_knn": k.brute_knn,
         "radix_order": k.radix_order,
         "column_sums": k.column_sums,
         "column_extrema3": k.column_extrema3,
@@ -330,6 +332,22 @@ def probe_knn(
         out_d, out_i, done,
     )  # fmt: skip
     return out_d, out_i, done
+
+
+def brute_knn(
+    points: NDArray[np.float64], rows: NDArray[np.intp], k: int
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """(dist (P, k), idx (P, k)): the ``k`` nearest points of a few rows of (N >= k, 3)
+    points (the row itself included), nearest first, ties by index, by one pass over all
+    the points a row: what :func:`probe_knn` leaves not done (a far outlier), without a
+    k-d tree of all the points (a 307,200-point scan's tree: ~35 ms; a pass: ~0.5 ms).
+    Needs :func:`available`."""
+    out: tuple[NDArray[np.float64], NDArray[np.int64]] = _load()["brute_knn"](
+        np.ascontiguousarray(points, dtype=np.float64),
+        np.ascontiguousarray(rows, dtype=np.int64),
+        int(k),
+    )
+    return out
 
 
 #: Rows from which :func:`column_mean` adds them in the compiled loop (numpy's mean costs

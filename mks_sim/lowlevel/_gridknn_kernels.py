@@ -1082,6 +1082,42 @@ def face_support(points, ridx, rstart, cands, triples, n_regions):
 
 
 @nb.njit(cache=True)
+def brute_knn(points, rows, k):
+    """(dist (P, k), idx (P, k)): the k nearest of the (N >= k, 3) points to each of a few
+    rows (the row itself included), by (squared distance, index), the distance
+    ``sqrt((dx*dx + dy*dy) + dz*dz)`` -- one pass over all the points a row."""
+    n_rows = rows.shape[0]
+    out_d = np.empty((n_rows, k))
+    out_i = np.empty((n_rows, k), np.int64)
+    best_d2 = np.empty(k)
+    best_i = np.empty(k, np.int64)
+    n = points.shape[0]
+    for p in range(n_rows):
+        q = rows[p]
+        qx = points[q, 0]
+        qy = points[q, 1]
+        qz = points[q, 2]
+        cnt = 0
+        for j in range(n):
+            dx = qx - points[j, 0]
+            dy = qy - points[j, 1]
+            dz = qz - points[j, 2]
+            e2 = (dx * dx + dy * dy) + dz * dz
+            if cnt == k:
+                if e2 >= best_d2[k - 1]:  # (an equal square: the later index loses)
+                    continue
+                u = k - 1
+            else:
+                u = cnt
+                cnt += 1
+            _insert_ranked(best_d2, best_i, u, e2, j)
+        for u in range(k):
+            out_d[p, u] = math.sqrt(best_d2[u])
+            out_i[p, u] = best_i[u]
+    return out_d, out_i
+
+
+@nb.njit(cache=True)
 def _brute_row(points, q, m, d2, best_d2, best_i, best_d):
     """The m nearest of the (N > m, 3) points to point q (itself left out) by (distance,
     index), the distance ``sqrt((dx*dx + dy*dy) + dz*dz)`` as the grid's rows take it, into
