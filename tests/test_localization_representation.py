@@ -429,7 +429,8 @@ def test_neighbour_scatter_equals_numpys_sums_to_the_bit() -> None:
 def test_voxel_average_compiled_equals_numpys_to_the_bit(monkeypatch: pytest.MonkeyPatch) -> None:
     """The compiled voxel centroids equal the numpy path's (unique cells in lexicographic
     order, sums in the points' order) bit for bit: coarse and fine voxels, rounded points
-    on cell borders, one point."""
+    on cell borders, one point, and scans listed row by row (runs of points in one cell,
+    each cell met again on the next rows: the compiled path sorts the runs)."""
     from mks_sim.localization.representation import voxel_average
     from mks_sim.lowlevel import _gridknn
 
@@ -443,6 +444,14 @@ def test_voxel_average_compiled_equals_numpys_to_the_bit(monkeypatch: pytest.Mon
             pts = np.round(pts, 3)  # many points on cell borders
         shift = (0.0, 0.5, 0.25)[t % 3]  # cells starting at, centred on, between
         cases.append((pts + rng.normal(size=3), float(rng.uniform(0.0005, 0.05)), shift))
+    for t in range(8):  # range images row by row: 2-20 points a run
+        w, h = int(rng.integers(40, 400)), int(rng.integers(30, 300))
+        u, w_ = np.meshgrid(np.linspace(-0.1, 0.1, w), np.linspace(-0.08, 0.08, h))
+        z = 0.4 + 0.05 * np.sin(9.0 * u) * np.cos(7.0 * w_) + rng.normal(0, 3e-4, u.shape)
+        scan = np.stack([u * z, w_ * z, z], axis=-1).reshape(-1, 3)
+        if t % 2:
+            scan = np.round(scan, 4)
+        cases.append((scan, float(0.2 / w * rng.uniform(1.5, 20.0)), (0.0, 0.5)[t % 2]))
     got = [voxel_average(p, v, shift=s) for p, v, s in cases]
     monkeypatch.setattr(_gridknn, "available", lambda: False)
     for (p, v, s), g in zip(cases, got, strict=True):

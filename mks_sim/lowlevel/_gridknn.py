@@ -587,8 +587,11 @@ def voxel_means(
     """(M, 3) centroids of the (N, 3) finite ``points`` in each occupied cube of edge
     ``voxel`` (cells ``floor(p / voxel + shift)``), cells in lexicographic order, to the bit as
     :func:`mks_sim.localization.representation.voxel_average` computes them with numpy, in
-    one compiled call (a 640 x 480 scan: numpy 10.4 ms, compiled 5.5); None when the cells
-    span too much for one int64 key (numpy's rows then). Needs :func:`available`."""
+    one compiled call; None when the cells span too much for one int64 key (numpy's rows
+    then). Needs :func:`available`. The kernel sorts runs of consecutive points in one cell
+    rather than the points (a 640 x 480 scan, 307,200 points in 95,900 runs, caches
+    flushed first: 23.6 -> 13.1 ms; 320 x 240: 4.3 -> 3.4 ms; a 240 x 180 scan has about
+    1.3 points a run on 1.9 mm cells: 2.0 ms either way)."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
     out, ok = _load()["voxel_means"](pts, float(voxel), float(shift))
     return out if ok else None

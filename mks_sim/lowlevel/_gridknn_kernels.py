@@ -940,10 +940,15 @@ def voxel_means(points, voxel, shift):
     """(M, 3) centroids of the points in each occupied cube of edge ``voxel``, cells in
     lexicographic order, as ``representation.voxel_average`` computes them with numpy:
     cells ``floor(p / voxel + shift)``, one mixed-radix key per cell, and each centroid's
-    sums added in the points' order (``np.bincount``'s; the sort is stable), divided by the
-    count; (empty, False) when the cells span too much for one int64 key. The lowest and
-    highest cells are those of the coordinates' bounds (the cell of a coordinate never
-    decreases with it)."""
+    sums added in the points' order (``np.bincount``'s), divided by the count; (empty,
+    False) when the cells span too much for one int64 key. The lowest and highest cells are
+    those of the coordinates' bounds (the cell of a coordinate never decreases with it).
+
+    A scan lists neighbouring points one after another: runs of consecutive points in one
+    cell are sorted by cell (stably: a cell's runs stay in the points' order), not the points
+    one by one, and each run is added point by point from the points themselves, so every
+    sum adds its cell's points in their order -- the same sums, with a fraction of the sort
+    and of the scattered reads (a 640 x 480 scan: about 4 points a run)."""
     n = points.shape[0]
     mn, mx, _ = column_extrema3(points)
     lo0 = math.floor(mn[0] / voxel + shift)
@@ -955,35 +960,56 @@ def voxel_means(points, voxel, shift):
     if float(s0) * float(s1) * float(s2) >= 2.0**62:
         return np.empty((0, 3)), False
     keys = voxel_keys(points, voxel, shift, lo0, lo1, lo2, s1, s2)
+    nrun = 1
+    for i in range(1, n):
+        nrun += keys[i] != keys[i - 1]
+    rkey = np.empty(nrun, np.int64)
+    rstart = np.empty(nrun + 1, np.int64)
+    rkey[0] = keys[0]
+    rstart[0] = 0
+    r = 1
+    for i in range(1, n):
+        if keys[i] != keys[i - 1]:
+            rkey[r] = keys[i]
+            rstart[r] = i
+            r += 1
+    rstart[nrun] = n
     top = s0 * s1 * s2 - 1
     bits = 1
     while (top >> bits) > 0:
         bits += 1
-    skeys, order = radix_pairs(keys, bits)
-    sums = np.empty((n, 3))
-    counts = np.empty(n, np.int64)
-    m = -1
-    prev = -1
-    for r in range(n):
-        j = order[r]
-        if skeys[r] != prev:
-            m += 1
-            prev = skeys[r]
-            sums[m, 0] = points[j, 0]
-            sums[m, 1] = points[j, 1]
-            sums[m, 2] = points[j, 2]
-            counts[m] = 1
-        else:
-            sums[m, 0] += points[j, 0]
-            sums[m, 1] += points[j, 1]
-            sums[m, 2] += points[j, 2]
-            counts[m] += 1
-    m += 1
+    skeys, order = radix_pairs(rkey, bits)
+    m = 1
+    for t in range(1, nrun):
+        m += skeys[t] != skeys[t - 1]
     out = np.empty((m, 3))
-    for c in range(m):
-        out[c, 0] = sums[c, 0] / counts[c]
-        out[c, 1] = sums[c, 1] / counts[c]
-        out[c, 2] = sums[c, 2] / counts[c]
+    c = -1
+    x = 0.0
+    y = 0.0
+    z = 0.0
+    cnt = 0
+    for t in range(nrun):
+        a = rstart[order[t]]
+        b = rstart[order[t] + 1]
+        if t == 0 or skeys[t] != skeys[t - 1]:  # a new cell: its first point starts the sums
+            if c >= 0:
+                out[c, 0] = x / cnt
+                out[c, 1] = y / cnt
+                out[c, 2] = z / cnt
+            c += 1
+            x = points[a, 0]
+            y = points[a, 1]
+            z = points[a, 2]
+            cnt = 1
+            a += 1
+        for i in range(a, b):
+            x += points[i, 0]
+            y += points[i, 1]
+            z += points[i, 2]
+            cnt += 1
+    out[c, 0] = x / cnt
+    out[c, 1] = y / cnt
+    out[c, 2] = z / cnt
     return out, True
 
 
