@@ -944,11 +944,12 @@ def voxel_means(points, voxel, shift):
     False) when the cells span too much for one int64 key. The lowest and highest cells are
     those of the coordinates' bounds (the cell of a coordinate never decreases with it).
 
-    A scan lists neighbouring points one after another: runs of consecutive points in one
-    cell are sorted by cell (stably: a cell's runs stay in the points' order), not the points
-    one by one, and each run is added point by point from the points themselves, so every
-    sum adds its cell's points in their order -- the same sums, with a fraction of the sort
-    and of the scattered reads (a 640 x 480 scan: about 4 points a run)."""
+    A scan lists neighbouring points one after another: the runs of consecutive points in
+    one cell are sorted by cell (not the points one by one) to number the cells in key
+    order, and the sums are then added in one pass over the points in their order (each
+    cell's in that order, as before; the points read in sequence, the sums of a 640 x 480
+    scan's 19,500 cells held in cache).
+    """
     n = points.shape[0]
     mn, mx, _ = column_extrema3(points)
     lo0 = math.floor(mn[0] / voxel + shift)
@@ -979,37 +980,41 @@ def voxel_means(points, voxel, shift):
     while (top >> bits) > 0:
         bits += 1
     skeys, order = radix_pairs(rkey, bits)
-    m = 1
+    cell = np.empty(nrun, np.int64)  # each run's cell, numbered in key order
+    c = 0
+    cell[order[0]] = 0
     for t in range(1, nrun):
-        m += skeys[t] != skeys[t - 1]
-    out = np.empty((m, 3))
-    c = -1
-    x = 0.0
-    y = 0.0
-    z = 0.0
-    cnt = 0
-    for t in range(nrun):
-        a = rstart[order[t]]
-        b = rstart[order[t] + 1]
-        if t == 0 or skeys[t] != skeys[t - 1]:  # a new cell: its first point starts the sums
-            if c >= 0:
-                out[c, 0] = x / cnt
-                out[c, 1] = y / cnt
-                out[c, 2] = z / cnt
-            c += 1
-            x = points[a, 0]
-            y = points[a, 1]
-            z = points[a, 2]
-            cnt = 1
+        c += skeys[t] != skeys[t - 1]
+        cell[order[t]] = c
+    m = c + 1
+    acc = np.zeros((m, 3))
+    cnt = np.zeros(m, np.int64)
+    for j in range(nrun):  # the points in their order: each cell's sums in that order
+        c = cell[j]
+        a = rstart[j]
+        b = rstart[j + 1]
+        if cnt[c] == 0:
+            acc[c, 0] = points[a, 0]
+            acc[c, 1] = points[a, 1]
+            acc[c, 2] = points[a, 2]
+            cnt[c] = 1
             a += 1
+        x = acc[c, 0]
+        y = acc[c, 1]
+        z = acc[c, 2]
         for i in range(a, b):
             x += points[i, 0]
             y += points[i, 1]
             z += points[i, 2]
-            cnt += 1
-    out[c, 0] = x / cnt
-    out[c, 1] = y / cnt
-    out[c, 2] = z / cnt
+        acc[c, 0] = x
+        acc[c, 1] = y
+        acc[c, 2] = z
+        cnt[c] += b - a
+    out = np.empty((m, 3))
+    for c in range(m):
+        out[c, 0] = acc[c, 0] / cnt[c]
+        out[c, 1] = acc[c, 1] / cnt[c]
+        out[c, 2] = acc[c, 2] / cnt[c]
     return out, True
 
 
