@@ -98,6 +98,35 @@ def test_invert(seed: int) -> None:
     np.testing.assert_allclose(invert(T) @ T, np.eye(4), atol=1e-12)
 
 
+def test_invert_of_a_float64_array_equals_the_general_path_to_the_bit() -> None:
+    """The float64 (4, 4) array's inverse (no general checks) equals the general path's
+    (a list, float32) bit for bit; NaN or inf raises on both; finite entries whose sum
+    overflows do not."""
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        T = _random_rigid(rng)
+        T[:3, 3] *= 10.0 ** rng.uniform(-3, 3)
+        general = make_transform(T[:3, :3].T, -T[:3, :3].T @ T[:3, 3])
+        assert invert(T).tobytes() == general.tobytes()
+        assert invert(T.tolist()).tobytes() == general.tobytes()
+        F = np.asfortranarray(T)  # (the product's rounding may follow the layout)
+        assert invert(F).tobytes() == make_transform(F[:3, :3].T, -F[:3, :3].T @ F[:3, 3]).tobytes()
+    T32 = _random_rigid(rng).astype(np.float32)
+    R = T32[:3, :3].astype(np.float64)
+    want = make_transform(R.T, -R.T @ T32[:3, 3].astype(np.float64))
+    assert invert(T32).tobytes() == want.tobytes()
+    for bad in (np.nan, np.inf, -np.inf):
+        T = np.eye(4)
+        T[1, 3] = bad
+        with pytest.raises(DataError, match="finite"):
+            invert(T)
+        with pytest.raises(DataError, match="finite"):
+            invert(T.tolist())
+    huge = np.eye(4)
+    huge[:3, 3] = 1e308
+    assert np.isfinite(invert(huge)[:3, :3]).all()
+
+
 def test_cube_rotations_is_group_of_24() -> None:
     G = cube_rotations()
     assert G.shape == (24, 3, 3)

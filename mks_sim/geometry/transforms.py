@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+import math
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -94,6 +95,18 @@ def apply(T: ArrayLike, points: ArrayLike) -> FloatArray:
 
 def invert(T: ArrayLike) -> FloatArray:
     """Inverse of a rigid transform (uses ``R^T``, exact for proper rigid motions)."""
+    if type(T) is np.ndarray and T.dtype == np.float64 and T.shape == (4, 4):
+        # the common case, a float64 4 x 4 array: the same values without the general
+        # checks and copies (26 -> 15 us; verification inverts a few poses per hypothesis);
+        # a sum that is not finite means an entry may not be (or only overflowed: looked at)
+        if not math.isfinite(T.sum()) and not np.all(np.isfinite(T)):
+            raise DataError("invert: T: expected finite entries, got NaN or inf")
+        R = T[:3, :3]
+        out = np.empty((4, 4))
+        out[:3, :3] = R.T
+        out[:3, 3] = -R.T @ T[:3, 3]
+        out[3] = (0.0, 0.0, 0.0, 1.0)
+        return out
     M = _as_matrix(T, "invert: T")
     R = M[:3, :3]
     return make_transform(R.T, -R.T @ M[:3, 3])

@@ -481,7 +481,8 @@ def score_pose(
         inliers (so among equally explaining poses the tighter one wins).
     """
     scene = np.asarray(scene_points, dtype=np.float64)
-    p = scene @ invert(matrix)[:3, :3].T + invert(matrix)[:3, 3]
+    S = invert(matrix)
+    p = scene @ S[:3, :3].T + S[:3, 3]
     dist, j = surface.nearest(p, inlier_distance + surface.spacing)
     ok = np.isfinite(dist)
     r_all = np.zeros(len(p))
@@ -886,7 +887,8 @@ def verify_hypotheses(
         members = [k for k in range(len(ordered)) if init_labels[k] == i and k != i]
         related = list(_matching_symmetries([ordered[k].matrix for k in members], h.matrix, syms))
         # The reference point moves with the model: p_ref_model = T_init^-1 p_ref.
-        ref_model = invert(h.matrix)[:3, :3] @ h.reference_point + invert(h.matrix)[:3, 3]
+        inv = invert(h.matrix)
+        ref_model = inv[:3, :3] @ h.reference_point + inv[:3, 3]
         ref = T_new[:3, :3] @ ref_model + T_new[:3, 3]
         moved = replace(h, matrix=T_new, reference_point=ref, rmse=rmse, score=score)
         refined.append((moved, frac, related))
