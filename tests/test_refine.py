@@ -154,17 +154,21 @@ def test_group_equivalent_recognises_cube_symmetries() -> None:
 
 
 @pytest.mark.parametrize(
-    ("n", "compiled"), [(60, True), (60, False), (300, True)]
-)  # every pair at once (the representatives compiled or by the Python loop); a pose at a time
+    ("n", "how"),
+    [(60, "kernel"), (60, "products"), (60, "products, loop"), (300, "kernel"), (300, "products")],
+)  # the compiled pass over the representatives' pairs; numpy's products of every pair at
+# once (the representatives compiled or by the Python loop); a pose at a time (300)
 def test_group_equivalent_labels_as_the_first_representative_rule(
-    n: int, compiled: bool, monkeypatch: pytest.MonkeyPatch
+    n: int, how: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Brute force: pose i joins the first earlier representative within the translation
     tolerance whose rotation times some symmetry is within the angle; else it represents."""
     import mks_sim.models.refine as refine
     from mks_sim.geometry.transforms import rotation_angle_deg
 
-    if not compiled:
+    if how == "kernel" and not refine._compiled_available():
+        pytest.skip("numba unavailable")
+    if how == "products, loop":
         monkeypatch.setattr(refine, "_GROUP_COMPILED_MIN", 10**9)
 
     rng = np.random.default_rng(5)
@@ -177,7 +181,9 @@ def test_group_equivalent_labels_as_the_first_representative_rule(
         T[:3, 3] += rng.normal(0, 0.0015, 3)
         mats.append(T)
     for syms in (rots, None):
-        labels = group_equivalent(mats, syms, rotation_tol_deg=5.0, translation_tol=0.006)
+        labels = group_equivalent(
+            mats, syms, rotation_tol_deg=5.0, translation_tol=0.006, compiled=how == "kernel"
+        )
         all_s = [np.eye(3)] + ([] if syms is None else list(syms))
         reps: list[int] = []
         expect = []

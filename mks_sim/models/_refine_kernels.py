@@ -242,6 +242,52 @@ def first_representatives(same: np.ndarray) -> np.ndarray:  # pragma: no cover
 
 
 @nb.njit(cache=True)
+def equivalent_labels(
+    mats: np.ndarray, syms: np.ndarray, translation_tol: float, cos_tol: float
+) -> np.ndarray:  # pragma: no cover
+    """(H,) labels of H (4, 4) poses, best first, as :func:`first_representatives` gives
+    them from :func:`mks_sim.models.refine.group_equivalent`'s pairs: pose i joins the
+    first earlier representative j whose origin is within ``translation_tol``
+    (``sqrt((dx*dx + dy*dy) + dz*dz)``, numpy's norm) and some ``R_j S`` of which is
+    within the angle of ``cos_tol`` of ``R_i`` (``(trace((R_j S)^T R_i) - 1) / 2``, its
+    sums in a fixed order: numpy's batched products may round their last bit otherwise);
+    only the representatives' pairs are computed."""
+    h = mats.shape[0]
+    ns = syms.shape[0]
+    labels = np.arange(h)
+    reps = np.empty(h, np.int64)
+    nrep = 0
+    for i in range(h):
+        found = -1
+        for r in range(nrep):
+            j = reps[r]
+            dx = mats[j, 0, 3] - mats[i, 0, 3]
+            dy = mats[j, 1, 3] - mats[i, 1, 3]
+            dz = mats[j, 2, 3] - mats[i, 2, 3]
+            if not np.sqrt((dx * dx + dy * dy) + dz * dz) <= translation_tol:
+                continue
+            for s in range(ns):
+                acc = 0.0
+                for p in range(3):
+                    for q in range(3):
+                        rs = (
+                            mats[j, p, 0] * syms[s, 0, q] + mats[j, p, 1] * syms[s, 1, q]
+                        ) + mats[j, p, 2] * syms[s, 2, q]
+                        acc += rs * mats[i, p, q]
+                if (acc - 1.0) / 2.0 >= cos_tol:
+                    found = j
+                    break
+            if found >= 0:
+                break
+        if found >= 0:
+            labels[i] = found
+        else:
+            reps[nrep] = i
+            nrep += 1
+    return labels
+
+
+@nb.njit(cache=True)
 def icp_lookup_loop(
     scene: np.ndarray,
     scene_to_model: np.ndarray,
