@@ -71,6 +71,36 @@ def test_batch_inlier_fractions_equal_score_pose() -> None:
     assert on_grid[0] > 0.99 and max(on_grid[1:]) < on_grid[0]
 
 
+def test_compiled_score_pose_equals_numpys() -> None:
+    """score_pose's compiled pass (on the lookup grid) gives numpy's inlier fraction and its
+    score and RMS residual to ~1e-12 (its own rounding), near the truth and off it; without
+    the grid, or when the reach exceeds the grid's margin, it is numpy's path."""
+    from mks_sim.lowlevel import _gridknn
+
+    if not _gridknn.available():
+        pytest.skip("numba unavailable")
+    rng = np.random.default_rng(12)
+    pts, nrm = sample_surface(box_mesh(0.05), 3000, rng=rng)
+    surface = ModelSurface.from_arrays(pts, nrm)
+    scene, _ = sample_surface(box_mesh(0.05), 1500, rng=rng)
+    scene = scene + rng.normal(0.0, 3e-4, scene.shape)
+    mats = [np.eye(4)] + [
+        make_transform(random_rotation(rng) if k % 3 == 0 else np.eye(3), rng.normal(0, 0.002, 3))
+        for k in range(30)
+    ]
+    no_grid = [score_pose(surface, scene, T, 0.002, compiled=True) for T in mats]
+    assert no_grid == [score_pose(surface, scene, T, 0.002) for T in mats]
+    surface.with_lookup()
+    for T in mats:
+        want = score_pose(surface, scene, T, 0.002)
+        got = score_pose(surface, scene, T, 0.002, compiled=True)
+        assert got[1] == want[1]  # the same inliers
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
+    assert score_pose(surface, scene, mats[0], 0.002, compiled=True)[1] > 0.95
+    empty = score_pose(surface, scene + 1.0, mats[0], 0.002, compiled=True)  # nothing near
+    assert empty == (0.0, 0.0, float("inf"))
+
+
 def test_batch_explained_counts_model_samples_near_the_scene() -> None:
     from scipy.spatial import cKDTree
 

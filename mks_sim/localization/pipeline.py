@@ -124,7 +124,12 @@ FUSED_ICP = True
 #: industrial part (``benchmarks/localize.py``'s rows, 56 at seeds 777+ and 112 at 5000+):
 #: the same successes (54 and 110 with four, 54 and 111 with two), the same median errors,
 #: 7-14 % less time. When both score under ``min_score`` the fallbacks run.
-CLOUD_VERIFY: dict[str, Any] = {**POLYHEDRAL_VERIFY, "prescreen": 2, "icp_fused": FUSED_ICP}
+CLOUD_VERIFY: dict[str, Any] = {
+    **POLYHEDRAL_VERIFY,
+    "prescreen": 2,
+    "icp_fused": FUSED_ICP,
+    "compiled_score": FUSED_ICP,  # (score_pose in one compiled pass, its last bits its own)
+}
 #: A polyhedral pose that leaves more off-table points in its bounding sphere unexplained
 #: than this fraction of the points it explains covers only part of an object (a cube pose
 #: around the lower part of a taller box): not accepted (not found rather than a wrong pose).

@@ -178,6 +178,51 @@ def lookup_nearest(
     return d, j, outside
 
 
+@nb.njit(cache=True)
+def lookup_score(
+    scene: np.ndarray,
+    S: np.ndarray,
+    origin: np.ndarray,
+    cell: float,
+    shape: np.ndarray,
+    index: np.ndarray,
+    points: np.ndarray,
+    normals: np.ndarray,
+    max_distance: float,
+    inlier: float,
+) -> tuple[int, float]:  # pragma: no cover
+    """(inliers, sum of their squared residuals) of :func:`mks_sim.models.refine.score_pose`
+    in one pass: each scene point moved into the model frame by ``S`` (scene -> model), its
+    sample looked up on the grid (as :func:`lookup_nearest`: a miss off the grid or at
+    ``max_distance``), an inlier when its point-to-plane residual to that sample is at most
+    ``inlier``. (The caller makes sure no query off the grid could have a sample within
+    ``max_distance``.) The moved points and the sums round as this loop does, not as
+    numpy's products and pairwise sums: the last bits of the score may differ."""
+    n = scene.shape[0]
+    count = 0
+    ssq = 0.0
+    for i in range(n):
+        x = scene[i, 0]
+        y = scene[i, 1]
+        z = scene[i, 2]
+        px = S[0, 0] * x + S[0, 1] * y + S[0, 2] * z + S[0, 3]
+        py = S[1, 0] * x + S[1, 1] * y + S[1, 2] * z + S[1, 3]
+        pz = S[2, 0] * x + S[2, 1] * y + S[2, 2] * z + S[2, 3]
+        q = _cell_sample(px, py, pz, origin, cell, shape, index)
+        if q < 0:
+            continue
+        ex = px - points[q, 0]
+        ey = py - points[q, 1]
+        ez = pz - points[q, 2]
+        if not np.sqrt(ex * ex + ey * ey + ez * ez) < max_distance:
+            continue
+        r = ex * normals[q, 0] + ey * normals[q, 1] + ez * normals[q, 2]
+        if abs(r) <= inlier:
+            count += 1
+            ssq += r * r
+    return count, ssq
+
+
 @nb.njit(cache=True, parallel=True)
 def lookup_inlier_counts(
     scene: np.ndarray,
