@@ -265,6 +265,38 @@ def test_grid_equals_tree_on_clustered_points(dim, threshold, brute, monkeypatch
         assert np.array_equal(grid.distances(i), tree.distances(i))
 
 
+def test_grid_rows_do_not_depend_on_the_tasks(monkeypatch):
+    """The grid's rows are the same, to the bit, whatever the cells per parallel task (1 to
+    all of them) and the threads: each cell's rows are its own work."""
+    import numba
+
+    import mks_sim.lowlevel._gridknn as gk
+
+    rng = np.random.default_rng(31)
+    pts = np.concatenate(
+        [rng.normal(0.3, 0.05, (2000, 3)), np.repeat(rng.random((5, 3)), 20, axis=0)]
+    )
+    runs = []
+    before = numba.get_num_threads()
+    try:
+        for low, high, threads in ((32, 256, None), (1, 1, None), (7, 7, 1), (10**6, 10**6, None)):
+            monkeypatch.setattr(gk, "_KNN_CHUNK_MIN", low)
+            monkeypatch.setattr(gk, "_KNN_CHUNK_MAX", high)
+            numba.set_num_threads(threads or numba.config.NUMBA_NUM_THREADS)
+            runs.append(gk.grid_knn(pts, 8, 0.05))
+    finally:
+        numba.set_num_threads(before)
+    first = runs[0]
+    assert first[3].mean() > 0.8
+    for other in runs[1:]:
+        assert np.array_equal(other[3], first[3])  # the same rows done
+        done = first[3]
+        assert np.array_equal(other[2][done], first[2][done])  # of the same lengths
+        keep = (np.arange(8) < first[2][:, None]) & done[:, None]  # (the rest is garbage)
+        assert np.array_equal(other[0][keep], first[0][keep])
+        assert np.array_equal(other[1][keep], first[1][keep])
+
+
 def test_grid_rows_against_brute_force_3d():
     rng = np.random.default_rng(8)
     pts = np.round(rng.random((400, 3)) * 6) / 2  # a lattice: ties everywhere

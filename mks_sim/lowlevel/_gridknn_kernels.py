@@ -164,10 +164,11 @@ def knn_cells(
     out_dist,
     out_len,
     done,  # (N,) bool, original order
+    chunk=_CHUNK,  # cells per parallel task
 ):
     ncell = ckey.shape[0]
     ncol = (2 * ring + 1) * (2 * ring + 1)
-    nchunk = (ncell + _CHUNK - 1) // _CHUNK
+    nchunk = (ncell + chunk - 1) // chunk
     for ch in nb.prange(nchunk):
         # Buffers shared by the chunk's cells (allocating per cell costs more than the work).
         rlo = np.empty(ncol, np.int64)
@@ -182,7 +183,7 @@ def knn_cells(
         best_d = np.empty(m)
         best_d2 = np.empty(m)
         best_i = np.empty(m, np.int64)
-        for c in range(ch * _CHUNK, min(ncell, (ch + 1) * _CHUNK)):
+        for c in range(ch * chunk, min(ncell, (ch + 1) * chunk)):
             cell_rows(
                 c, sx, sy, sz, sidx, ccoord, ckey, cstart, colptr, todo, lo, h, dims, m, thr, ring,
                 margin, max_block, out_nbr, out_dist, out_len, done,
