@@ -540,7 +540,8 @@ def test_row_norms_are_numpys_norms_to_the_bit() -> None:
 
 def test_norm_within_takes_the_rows_numpys_norm_takes() -> None:
     """``norm_within`` returns the rows ``np.linalg.norm(points - c, axis=1) <= r`` keeps,
-    radii set to some rows' own norms (the boundary) included."""
+    radii set to some rows' own norms (the boundary) and one ulp either side of them
+    included (the compiled pass takes roots only near the bound), and a zero radius."""
     from mks_sim.lowlevel._gridknn import norm_within
 
     rng = np.random.default_rng(26)
@@ -549,7 +550,10 @@ def test_norm_within_takes_the_rows_numpys_norm_takes() -> None:
         c = np.round(rng.normal(size=3) * 0.02, 4)
         norms = np.linalg.norm(pts - c, axis=1)
         r = float(norms[rng.integers(len(norms))]) if len(norms) else 0.05
-        np.testing.assert_array_equal(norm_within(pts, c, r), np.flatnonzero(norms <= r))
+        for radius in (r, np.nextafter(r, 0.0), np.nextafter(r, np.inf), 0.0):
+            np.testing.assert_array_equal(
+                norm_within(pts, c, float(radius)), np.flatnonzero(norms <= radius)
+            )
 
 
 def test_median_is_numpys_median() -> None:

@@ -538,14 +538,27 @@ def ball_rows(pts, c0, c1, c2, bound, root):
     n = pts.shape[0]
     out = np.empty(n, np.int64)
     k = 0
+    # with ``root``: squares clearly inside or outside need no root (its rounding is far
+    # below these margins); only those near the bound take it
+    inside = -1.0
+    outside = np.inf
+    if root and 0.0 < bound < 1e150:
+        inside = bound * bound * (1.0 - 1e-9)
+        outside = bound * bound * (1.0 + 1e-9)
     for i in range(n):
         dx = pts[i, 0] - c0
         dy = pts[i, 1] - c1
         dz = pts[i, 2] - c2
         s = dx * dx + dy * dy + dz * dz
-        if (math.sqrt(s) if root else s) <= bound:
-            out[k] = i
-            k += 1
+        if root:
+            if s > outside:
+                continue
+            if s > inside and not math.sqrt(s) <= bound:
+                continue
+        elif not s <= bound:
+            continue
+        out[k] = i
+        k += 1
     return out[:k]
 
 
