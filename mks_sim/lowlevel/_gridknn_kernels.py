@@ -1127,6 +1127,37 @@ def face_support(points, ridx, rstart, cands, triples, n_regions):
     return worst
 
 
+@nb.njit(cache=True, inline="always")
+def _rank_all(points, q, m, skip_q, best_d2, best_i, d2):
+    """Rank all the (N, 3) points into the m best by (squared distance, index) of point q
+    (q itself left out with ``skip_q``), the distance ``(dx*dx + dy*dy) + dz*dz`` as the
+    grid's rows take it; each square also into ``d2`` when it holds N entries. Returns how
+    many are held (at most m)."""
+    qx = points[q, 0]
+    qy = points[q, 1]
+    qz = points[q, 2]
+    keep = d2.shape[0] == points.shape[0]
+    cnt = 0
+    for j in range(points.shape[0]):
+        dx = qx - points[j, 0]
+        dy = qy - points[j, 1]
+        dz = qz - points[j, 2]
+        e2 = (dx * dx + dy * dy) + dz * dz
+        if keep:
+            d2[j] = e2
+        if skip_q and j == q:
+            continue
+        if cnt == m:
+            if e2 >= best_d2[m - 1]:  # (an equal square: the later index loses)
+                continue
+            k = m - 1
+        else:
+            k = cnt
+            cnt += 1
+        _insert_ranked(best_d2, best_i, k, e2, j)  # (j ascending: an equal square goes after)
+    return cnt
+
+
 @nb.njit(cache=True)
 def brute_knn(points, rows, k):
     """(dist (P, k), idx (P, k)): the k nearest of the (N >= k, 3) points to each of a few
@@ -1137,26 +1168,9 @@ def brute_knn(points, rows, k):
     out_i = np.empty((n_rows, k), np.int64)
     best_d2 = np.empty(k)
     best_i = np.empty(k, np.int64)
-    n = points.shape[0]
+    none = np.empty(0)
     for p in range(n_rows):
-        q = rows[p]
-        qx = points[q, 0]
-        qy = points[q, 1]
-        qz = points[q, 2]
-        cnt = 0
-        for j in range(n):
-            dx = qx - points[j, 0]
-            dy = qy - points[j, 1]
-            dz = qz - points[j, 2]
-            e2 = (dx * dx + dy * dy) + dz * dz
-            if cnt == k:
-                if e2 >= best_d2[k - 1]:  # (an equal square: the later index loses)
-                    continue
-                u = k - 1
-            else:
-                u = cnt
-                cnt += 1
-            _insert_ranked(best_d2, best_i, u, e2, j)
+        _rank_all(points, rows[p], k, False, best_d2, best_i, none)
         for u in range(k):
             out_d[p, u] = math.sqrt(best_d2[u])
             out_i[p, u] = best_i[u]
@@ -1171,26 +1185,7 @@ def _brute_row(points, q, m, d2, best_d2, best_i, best_d):
     (N,) scratch); False (as the grid gives a row up) when a point left out is as far as
     the m-th (a tie the index would settle among more than m)."""
     n = points.shape[0]
-    qx = points[q, 0]
-    qy = points[q, 1]
-    qz = points[q, 2]
-    cnt = 0
-    for j in range(n):
-        dx = qx - points[j, 0]
-        dy = qy - points[j, 1]
-        dz = qz - points[j, 2]
-        e2 = (dx * dx + dy * dy) + dz * dz
-        d2[j] = e2
-        if j == q:
-            continue
-        if cnt == m:
-            if e2 >= best_d2[m - 1]:  # (an equal square: the later index loses)
-                continue
-            k = m - 1
-        else:
-            k = cnt
-            cnt += 1
-        _insert_ranked(best_d2, best_i, k, e2, j)  # (j ascending: an equal square goes after)
+    _rank_all(points, q, m, True, best_d2, best_i, d2)
     # a point left out as far as the m-th: its square at least the largest kept, its sqrt
     # the same (distinct squares may share a sqrt)
     top = best_d2[m - 1]

@@ -178,6 +178,32 @@ def lookup_nearest(
     return d, j, outside
 
 
+@nb.njit(cache=True, inline="always")
+def _residual(
+    px: float,
+    py: float,
+    pz: float,
+    origin: np.ndarray,
+    cell: float,
+    shape: np.ndarray,
+    index: np.ndarray,
+    points: np.ndarray,
+    normals: np.ndarray,
+    max_distance: float,
+) -> tuple[bool, float]:  # pragma: no cover
+    """(hit, r): the model-frame point's sample on the lookup grid (as :func:`lookup_nearest`:
+    no hit off the grid or at ``max_distance``) and its point-to-plane residual to it."""
+    q = _cell_sample(px, py, pz, origin, cell, shape, index)
+    if q < 0:
+        return False, 0.0
+    ex = px - points[q, 0]
+    ey = py - points[q, 1]
+    ez = pz - points[q, 2]
+    if not np.sqrt(ex * ex + ey * ey + ez * ez) < max_distance:
+        return False, 0.0
+    return True, ex * normals[q, 0] + ey * normals[q, 1] + ez * normals[q, 2]
+
+
 @nb.njit(cache=True)
 def lookup_score(
     scene: np.ndarray,
@@ -208,16 +234,8 @@ def lookup_score(
         px = S[0, 0] * x + S[0, 1] * y + S[0, 2] * z + S[0, 3]
         py = S[1, 0] * x + S[1, 1] * y + S[1, 2] * z + S[1, 3]
         pz = S[2, 0] * x + S[2, 1] * y + S[2, 2] * z + S[2, 3]
-        q = _cell_sample(px, py, pz, origin, cell, shape, index)
-        if q < 0:
-            continue
-        ex = px - points[q, 0]
-        ey = py - points[q, 1]
-        ez = pz - points[q, 2]
-        if not np.sqrt(ex * ex + ey * ey + ez * ez) < max_distance:
-            continue
-        r = ex * normals[q, 0] + ey * normals[q, 1] + ez * normals[q, 2]
-        if abs(r) <= inlier:
+        hit, r = _residual(px, py, pz, origin, cell, shape, index, points, normals, max_distance)
+        if hit and abs(r) <= inlier:
             count += 1
             ssq += r * r
     return count, ssq
@@ -254,15 +272,10 @@ def lookup_inlier_counts(
             px = dx0 * T[k, 0, 0] + dx1 * T[k, 1, 0] + dx2 * T[k, 2, 0]
             py = dx0 * T[k, 0, 1] + dx1 * T[k, 1, 1] + dx2 * T[k, 2, 1]
             pz = dx0 * T[k, 0, 2] + dx1 * T[k, 1, 2] + dx2 * T[k, 2, 2]
-            q = _cell_sample(px, py, pz, origin, cell, shape, index)
-            if q < 0:
-                continue
-            ex = px - points[q, 0]
-            ey = py - points[q, 1]
-            ez = pz - points[q, 2]
-            if not np.sqrt(ex * ex + ey * ey + ez * ez) < max_distance:
-                continue
-            if abs(ex * normals[q, 0] + ey * normals[q, 1] + ez * normals[q, 2]) <= inlier:
+            hit, r = _residual(
+                px, py, pz, origin, cell, shape, index, points, normals, max_distance
+            )
+            if hit and abs(r) <= inlier:
                 count += 1
         out[k] = count
     return out
