@@ -650,8 +650,8 @@ def group_equivalent(
     reps: list[int] = []
     cos_tol = np.cos(np.radians(rotation_tol_deg))
     if compiled and len(mats) > 1 and _compiled_available():
-        # only the representatives' pairs, in one compiled pass (a hundred hypotheses of the
-        # cube: ~0.7 ms of batched products -> ~0.05 ms); the labels of the products below
+        # only the representatives' pairs, in one compiled pass (100 poses under the cube's
+        # 24 symmetries: 4.8 ms of batched products -> 0.16 ms); the products' labels below
         from mks_sim.models._refine_kernels import equivalent_labels
 
         return np.asarray(
