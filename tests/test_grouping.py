@@ -554,6 +554,8 @@ def test_norm_within_takes_the_rows_numpys_norm_takes() -> None:
             np.testing.assert_array_equal(
                 norm_within(pts, c, float(radius)), np.flatnonzero(norms <= radius)
             )
+    nan = np.array([[0.0, 0.0, 0.0], [np.nan, 0.0, 0.0], [0.01, 0.0, 0.0]])  # NaN is not in
+    np.testing.assert_array_equal(norm_within(nan, np.zeros(3), 0.05), [0, 2])
 
 
 def test_median_is_numpys_median() -> None:

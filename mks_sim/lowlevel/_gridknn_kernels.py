@@ -551,9 +551,7 @@ def ball_rows(pts, c0, c1, c2, bound, root):
         dz = pts[i, 2] - c2
         s = dx * dx + dy * dy + dz * dz
         if root:
-            if s > outside:
-                continue
-            if s > inside and not math.sqrt(s) <= bound:
+            if not s <= inside and (s > outside or not math.sqrt(s) <= bound):  # (NaN: out)
                 continue
         elif not s <= bound:
             continue
