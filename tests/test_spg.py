@@ -323,3 +323,45 @@ def test_grid_method_errors():
         SpatialProximityGraph(np.zeros((3, 2)), m=2, metric=Metric.manhattan(), method="grid")
     with pytest.raises(SpecError, match="method 'auto', 'tree' or 'grid'"):
         SpatialProximityGraph(np.zeros((3, 2)), m=2, method="fast")
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_weak_components_against_flood_fill_and_scipy(seed):
+    """The compiled union-find's count and labels: those of a flood fill over the graph's
+    entries both ways, numbered by each component's first node (scipy's numbering), and
+    scipy's own; explicit zeros are edges."""
+    from scipy.sparse import csgraph
+
+    from mks_sim.lowlevel._gridknn import weak_components
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 200))
+    e = int(rng.integers(0, 2 * n))
+    rows, cols = rng.integers(0, n, e), rng.integers(0, n, e)
+    data = rng.random(e) * (rng.random(e) > 0.3)  # some explicit zeros
+    graph = sparse.csr_array((data, (rows, cols)), shape=(n, n))
+    nbrs: list[set[int]] = [set() for _ in range(n)]
+    for a, b in zip(rows.tolist(), cols.tolist(), strict=True):
+        nbrs[a].add(b)
+        nbrs[b].add(a)
+    expect = np.full(n, -1)
+    count = 0
+    for s in range(n):
+        if expect[s] >= 0:
+            continue
+        expect[s] = count
+        stack = [s]
+        while stack:
+            for b in nbrs[stack.pop()]:
+                if expect[b] < 0:
+                    expect[b] = count
+                    stack.append(b)
+        count += 1
+    got_count, got = weak_components(graph)
+    assert got_count == count
+    np.testing.assert_array_equal(got, expect)
+    ref_count, ref = csgraph.connected_components(graph, directed=True, connection="weak")
+    assert ref_count == got_count and ref.dtype == got.dtype
+    np.testing.assert_array_equal(got, ref)
+    with pytest.raises(ValueError, match="square"):
+        weak_components(sparse.csr_array((2, 3)))

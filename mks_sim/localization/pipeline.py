@@ -49,7 +49,13 @@ from mks_sim.localization.representation import (
     voxel_average,
 )
 from mks_sim.localization.verify import Consistency, NearPoints, consistency, find_table, rank
-from mks_sim.lowlevel._gridknn import column_bounds, column_mean, norm_within, row_norms
+from mks_sim.lowlevel._gridknn import (
+    column_bounds,
+    column_mean,
+    norm_within,
+    row_norms,
+    weak_components,
+)
 from mks_sim.lowlevel.grouping import (
     PlanarRegion,
     Plane,
@@ -195,7 +201,6 @@ def object_segments(
             the representation's gap).
         merge: merge components that one object could span (self-occlusion splits).
     """
-    from scipy.sparse import csgraph
 
     objects = rep.objects
     if len(objects) < min_points:
@@ -215,7 +220,7 @@ def object_segments(
         (np.ones(int(link.sum())), (pos[adj.row[link]], pos[adj.col[link]])),
         shape=(len(idx), len(idx)),
     )
-    _, comp = csgraph.connected_components(joined, directed=True, connection="weak")
+    _, comp = weak_components(joined)
     merged = np.asarray(comp, dtype=np.intp)
     if merge:
         merged = _merge_components(objects[idx], merged, model_size)
@@ -770,9 +775,7 @@ def localize_cloud(
         # One SPG of the object points, edges up to 4 spacings: its components, and the SPG
         # of each segment whose points all have their m neighbours within that distance.
         adj = build_graph(obj, m=m, threshold=4.0 * spacing).adjacency
-        from scipy.sparse import csgraph
-
-        _, comp = csgraph.connected_components(adj, directed=True, connection="weak")
+        _, comp = weak_components(adj)
         comp = _merge_components(obj, comp, surface.size)
         sizes = np.bincount(comp)
         for c in np.argsort(-sizes):

@@ -381,7 +381,8 @@ class Representation:
     def labels(self) -> IntArray:
         """(K,) object (SPG component over edges <= :attr:`gap`) of each object point."""
         from scipy import sparse
-        from scipy.sparse import csgraph
+
+        from mks_sim.lowlevel._gridknn import weak_components
 
         if len(self.objects) == 0:
             return np.zeros(0, dtype=np.intp)
@@ -392,7 +393,7 @@ class Representation:
             copy=True,  # eliminate_zeros works in place: the SPG's arrays stay untouched
         )
         joined.eliminate_zeros()
-        _, comp = csgraph.connected_components(joined, directed=True, connection="weak")
+        _, comp = weak_components(joined)
         return np.asarray(comp, dtype=np.intp)
 
     @cached_property

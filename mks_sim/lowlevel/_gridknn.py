@@ -52,6 +52,7 @@ __all__ = [
     "sort_order",
     "space_any",
     "voxel_means",
+    "weak_components",
 ]
 
 log = logging.getLogger(__name__)
@@ -155,6 +156,7 @@ def _compile() -> dict[str, Any]:
         "face_support": k.face_support,
         "plane_band": k.plane_band,
         "footprint_inside": k.footprint_inside,
+        "weak_components": k.weak_components,
     }
 
 
@@ -602,3 +604,28 @@ def voxel_means(
     pts = np.ascontiguousarray(points, dtype=np.float64)
     out, ok = _load()["voxel_means"](pts, float(voxel), float(shift))
     return out if ok else None
+
+
+def weak_components(adjacency: Any) -> tuple[int, NDArray[Any]]:
+    """``scipy.sparse.csgraph.connected_components(adjacency, directed=True,
+    connection="weak")``: the same count and labels (numbered in the order of each
+    component's first node), by one compiled union-find over the CSR pattern when numba
+    imports (an object's 1,853-point SPG: 0.36 ms -> 0.02 ms; scipy validates and
+    transposes the graph first); explicit zeros are edges, as for scipy."""
+    from scipy import sparse
+
+    if not available():
+        from scipy.sparse import csgraph
+
+        count, labels = csgraph.connected_components(adjacency, directed=True, connection="weak")
+        return int(count), labels
+    csr = adjacency if sparse.issparse(adjacency) and adjacency.format == "csr" else None
+    if csr is None:
+        csr = sparse.csr_array(adjacency)
+    n = csr.shape[0]
+    if csr.shape[1] != n:
+        raise ValueError(f"weak_components: expected a square graph, got shape {csr.shape}")
+    count, labels = _load()["weak_components"](
+        np.asarray(csr.indptr, dtype=np.int64), np.asarray(csr.indices, dtype=np.int64), n
+    )
+    return int(count), labels

@@ -1254,3 +1254,39 @@ def induced_rows(indptr, indices, data, members, points, m):
             out_ind[o + u] = best_i[u]
             out_dat[o + u] = best_d[u]
     return True, out_ptr, out_ind, out_dat
+
+
+@nb.njit(cache=True)
+def weak_components(indptr, indices, n):
+    """(count, (n,) int32 labels) of the weakly connected components of a CSR pattern:
+    union-find over the entries, then labels in the order of each component's first node
+    (scipy's ``connected_components`` numbers them so: a search from each unlabelled node
+    in turn)."""
+    parent = np.arange(n)
+    for i in range(n):
+        for e in range(indptr[i], indptr[i + 1]):
+            a = i
+            while parent[a] != a:  # (path halving)
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            b = indices[e]
+            while parent[b] != b:
+                parent[b] = parent[parent[b]]
+                b = parent[b]
+            if a != b:  # the larger root under the smaller
+                if a < b:
+                    parent[b] = a
+                else:
+                    parent[a] = b
+    labels = np.empty(n, np.int32)
+    count = 0
+    for i in range(n):
+        r = i
+        while parent[r] != r:
+            r = parent[r]
+        if r == i:
+            labels[i] = count
+            count += 1
+        else:  # the root is the component's first node, labelled before i
+            labels[i] = labels[r]
+    return count, labels

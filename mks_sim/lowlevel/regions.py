@@ -15,11 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import sparse
-from scipy.sparse import csgraph
 
 from mks_sim.errors import DataError
 from mks_sim.lowlevel import _gridknn
-from mks_sim.lowlevel._gridknn import column_mean, row_norms
+from mks_sim.lowlevel._gridknn import column_mean, row_norms, weak_components
 from mks_sim.lowlevel.normals import (
     DEFAULT_CURVATURE_THRESHOLD,
     FixedGraph,
@@ -634,7 +633,7 @@ def _curved_regions(
     if idx.size < max(min_points, 4):
         return []
     adj = sparse.csr_array(graph.adjacency)[idx][:, idx]
-    _, comp = csgraph.connected_components(adj, directed=True, connection="weak")
+    _, comp = weak_components(adj)
     out: list[CurvedRegion] = []
     for c in np.argsort(-np.bincount(comp)):
         members = idx[comp == c]

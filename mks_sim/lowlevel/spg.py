@@ -31,7 +31,6 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import sparse
-from scipy.sparse.csgraph import connected_components
 
 from mks_sim.errors import DataError, SpecError
 from mks_sim.lowlevel.dynamic import DynamicKDTree
@@ -518,7 +517,9 @@ class SpatialProximityGraph:
 
         Computed as the weakly connected components of the directed graph (the same thing).
         """
-        count, labels = connected_components(self.pattern, directed=True, connection="weak")
+        from mks_sim.lowlevel._gridknn import weak_components
+
+        count, labels = weak_components(self.pattern)
         return int(count), labels
 
     # ------------------------------------------------------------------ updates
