@@ -363,5 +363,22 @@ def test_weak_components_against_flood_fill_and_scipy(seed):
     ref_count, ref = csgraph.connected_components(graph, directed=True, connection="weak")
     assert ref_count == got_count and ref.dtype == got.dtype
     np.testing.assert_array_equal(got, ref)
+    # a COO graph (converted first) and the path without numba give the same
+    coo_count, coo = weak_components(graph.tocoo())
+    assert coo_count == count
+    np.testing.assert_array_equal(coo, expect)
     with pytest.raises(ValueError, match="square"):
         weak_components(sparse.csr_array((2, 3)))
+
+
+def test_weak_components_without_numba(monkeypatch):
+    """Where numba is unavailable, scipy answers: the same count and labels."""
+    import mks_sim.lowlevel._gridknn as gk
+
+    graph = sparse.csr_array(
+        (np.ones(4), ([0, 1, 3, 5], [1, 0, 4, 3])), shape=(6, 6)
+    )  # components {0, 1}, {2}, {3, 4, 5}
+    monkeypatch.setattr(gk, "available", lambda: False)
+    count, labels = gk.weak_components(graph)
+    assert count == 3
+    np.testing.assert_array_equal(labels, [0, 0, 1, 2, 2, 2])
