@@ -367,7 +367,7 @@ def test_weak_components_against_flood_fill_and_scipy(seed):
     coo_count, coo = weak_components(graph.tocoo())
     assert coo_count == count
     np.testing.assert_array_equal(coo, expect)
-    with pytest.raises(ValueError, match="square"):
+    with pytest.raises(DataError, match="square"):
         weak_components(sparse.csr_array((2, 3)))
 
 

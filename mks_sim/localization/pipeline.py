@@ -201,7 +201,6 @@ def object_segments(
             the representation's gap).
         merge: merge components that one object could span (self-occlusion splits).
     """
-
     objects = rep.objects
     if len(objects) < min_points:
         return []
