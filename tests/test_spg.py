@@ -382,3 +382,5 @@ def test_weak_components_without_numba(monkeypatch):
     count, labels = gk.weak_components(graph)
     assert count == 3
     np.testing.assert_array_equal(labels, [0, 0, 1, 2, 2, 2])
+    with pytest.raises(DataError, match="square"):
+        gk.weak_components(sparse.csr_array((2, 3)))

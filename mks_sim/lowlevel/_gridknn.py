@@ -620,17 +620,16 @@ def weak_components(adjacency: Any) -> tuple[int, NDArray[Any]]:
 
     from mks_sim.errors import DataError
 
-    if not available():
-        from scipy.sparse import csgraph
-
-        count, labels = csgraph.connected_components(adjacency, directed=True, connection="weak")
-        return int(count), labels
-    csr = adjacency if sparse.issparse(adjacency) and adjacency.format == "csr" else None
-    if csr is None:
-        csr = sparse.csr_array(adjacency)
+    is_csr = sparse.issparse(adjacency) and adjacency.format == "csr"
+    csr = adjacency if is_csr else sparse.csr_array(adjacency)
     n = csr.shape[0]
     if csr.shape[1] != n:
         raise DataError(f"weak_components: expected a square graph, got shape {csr.shape}")
+    if not available():
+        from scipy.sparse import csgraph
+
+        count, labels = csgraph.connected_components(csr, directed=True, connection="weak")
+        return int(count), labels
     count, labels = _load()["weak_components"](
         np.asarray(csr.indptr, dtype=np.int64), np.asarray(csr.indices, dtype=np.int64), n
     )

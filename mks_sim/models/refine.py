@@ -503,7 +503,7 @@ def score_pose(
         rmse = float(np.sqrt(ssq / count))
         return frac * float(np.exp(-0.5 * (rmse / inlier_distance) ** 2)), frac, rmse
     p = scene @ S[:3, :3].T + S[:3, 3]
-    dist, j = surface.nearest(p, inlier_distance + surface.spacing)
+    dist, j = surface.nearest(p, reach)
     ok = np.isfinite(dist)
     r_all = np.zeros(len(p))
     r_all[ok] = np.einsum("ij,ij->i", p[ok] - surface.points[j[ok]], surface.normals[j[ok]])
