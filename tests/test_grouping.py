@@ -620,6 +620,36 @@ def test_compiled_smallest_eigenvectors_equal_numpys_to_the_bit(
     assert got_n.tobytes() == want_n.tobytes() and got_c.tobytes() == want_c.tobytes()
 
 
+def test_compiled_smallest_eigenvalues_equal_numpys_and_eigh() -> None:
+    """``smallest_eigenvalue``'s compiled pass gives numpy's closed form bit for bit (zero,
+    isotropic and NaN rows included), and both the least eigenvalue of ``eigvalsh``."""
+    from mks_sim.lowlevel import _gridknn
+    from mks_sim.lowlevel.normals import _smallest_eigenvalue_numpy, smallest_eigenvalue
+
+    if not _gridknn.available():
+        pytest.skip("numba not importable")
+    rng = np.random.default_rng(26)
+    nb_ = rng.normal(size=(2000, 12, 3)) * np.array([0.01, 0.004, 0.0003])
+    c = nb_ - nb_.mean(axis=1, keepdims=True)
+    pairs = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+    cov = np.stack([(c[..., a] * c[..., b]).mean(axis=1) for a, b in pairs], axis=1)
+    cov[:5] = 0.0
+    cov[5:10] = np.array([1.0, 0.0, 0.0, 1.0, 0.0, 1.0]) * 2e-6
+    cov[10] = [np.nan, 0.0, 0.0, 1.0, 0.0, 1.0]
+    got = smallest_eigenvalue(cov)  # 2,000 rows: the compiled pass
+    want = _smallest_eigenvalue_numpy(cov)
+    for g, w in zip(got, want, strict=True):
+        assert g.dtype == w.dtype and g.tobytes() == w.tobytes()
+    full = np.empty((len(cov) - 11, 3, 3))
+    for k, (a, b) in enumerate(pairs):
+        full[:, a, b] = full[:, b, a] = cov[11:, k]
+    lam = np.linalg.eigvalsh(full)[:, 0]
+    np.testing.assert_allclose(got[0][11:], lam, rtol=1e-6, atol=1e-15)
+    np.testing.assert_allclose(got[3][11:], lam / np.trace(full, axis1=1, axis2=2), rtol=1e-6)
+    assert np.all(got[0][:10] == got[1][:10]) and not got[2][:10].any()  # q, not safe
+    assert np.isnan(got[0][10])
+
+
 def test_vertex_support_compiled_as_face_by_face(monkeypatch: pytest.MonkeyPatch) -> None:
     """``plane_vertexes``' support distances in one compiled pass give the vertexes of the
     face-by-face numpy pass to the bit, on the industrial part's faces (many planes, the

@@ -148,6 +148,7 @@ def _compile() -> dict[str, Any]:
         "plane_pairs": k.plane_pairs,
         "plane_counts": k.plane_counts,
         "neighbour_scatter": k.neighbour_scatter,
+        "smallest_eigenvalues": k.smallest_eigenvalues,
         "ring1_cov": k.ring1_cov,
         "order_statistics": k.order_statistics,
         "space_any": k.space_any,
@@ -553,6 +554,19 @@ def space_any(
         h *= 2.0
         nx, ny, nz = (int(e / h) + 1 for e in ext)
     out: NDArray[np.bool_] = _load()["space_any"](pts, qs, float(r) * float(r), lo, h, nx, ny, nz)
+    return out
+
+
+def smallest_eigenvalues(
+    cov: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
+    """``(lambda_0, q, safe, variation)`` of N symmetric 3x3 matrices given as (N, 6) upper
+    triangles, as :func:`mks_sim.lowlevel.normals.smallest_eigenvalue` computes them with
+    numpy (to the bit), in one compiled pass over the rows on the threads, without its dozen
+    (N,) temporaries (2,500 rows: 0.35 -> 0.15 ms; the arccos and cosine are most of it).
+    Needs :func:`available`."""
+    out: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]
+    out = _load()["smallest_eigenvalues"](np.ascontiguousarray(cov, dtype=np.float64))
     return out
 
 

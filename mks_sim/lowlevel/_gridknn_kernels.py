@@ -905,6 +905,57 @@ def smallest_vectors(cov, lam0, q, safe):
     return out, bad
 
 
+_TWO_THIRDS_PI = 2.0 * np.pi / 3.0  # (numpy's constant in normals.smallest_eigenvalue)
+
+
+@nb.njit(cache=True, parallel=True)
+def smallest_eigenvalues(cov):
+    """``(lambda_0, q, safe, variation)`` of N symmetric 3x3 matrices (``cov`` (N, 6) upper
+    triangles) as ``normals.smallest_eigenvalue`` computes them with numpy, row by row in
+    the same order of operations (``ps ** 3`` is numpy's ``pow``; NaN passes ``clip``)."""
+    n = cov.shape[0]
+    lam0 = np.empty(n)
+    q = np.empty(n)
+    safe = np.empty(n, np.bool_)
+    curvature = np.empty(n)
+    for i in nb.prange(n):
+        a00 = cov[i, 0]
+        a01 = cov[i, 1]
+        a02 = cov[i, 2]
+        a11 = cov[i, 3]
+        a12 = cov[i, 4]
+        a22 = cov[i, 5]
+        qi = (a00 + a11 + a22) / 3.0
+        p1 = a01 * a01 + a02 * a02 + a12 * a12
+        b00 = a00 - qi
+        b11 = a11 - qi
+        b22 = a22 - qi
+        p = math.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1) / 6.0)
+        ok = p > 1e-300
+        ps = p if ok else 1.0
+        det = (
+            b00 * (b11 * b22 - a12 * a12)
+            - a01 * (a01 * b22 - a12 * a02)
+            + a02 * (a01 * a12 - b11 * a02)
+        ) / math.pow(ps, 3.0)
+        half = det / 2.0
+        if half < -1.0:
+            half = -1.0
+        elif half > 1.0:
+            half = 1.0
+        phi = math.acos(half) / 3.0
+        l0 = qi + 2.0 * p * math.cos(phi + _TWO_THIRDS_PI) if ok else qi
+        total = 3.0 * qi
+        if total > 0:
+            curvature[i] = (l0 if not l0 < 0.0 else 0.0) / total
+        else:
+            curvature[i] = 0.0
+        lam0[i] = l0
+        q[i] = qi
+        safe[i] = ok
+    return lam0, q, safe, curvature
+
+
 @nb.njit(cache=True, parallel=True)
 def voxel_keys(points, voxel, shift, lo0, lo1, lo2, s1, s2):
     """(N,) mixed-radix key of each point's cell ``floor(p / voxel + shift)`` relative to the

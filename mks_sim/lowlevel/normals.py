@@ -238,7 +238,22 @@ def smallest_eigenvalue(
     """``(lambda_0, q, safe, variation)`` of N symmetric 3x3 matrices given as (N, 6) upper
     triangles: the smallest eigenvalue by the trigonometric solution of the characteristic
     cubic, a third of the trace, where the solution applies (not isotropic), and the
-    surface variation ``lambda_0 / trace``."""
+    surface variation ``lambda_0 / trace``.
+
+    From :data:`_COMPILED_MIN_POINTS` rows, when numba imports, one compiled pass
+    (:func:`mks_sim.lowlevel._gridknn.smallest_eigenvalues`, the same arithmetic to the
+    bit); else numpy's (:func:`_smallest_eigenvalue_numpy`, the reference)."""
+    from mks_sim.lowlevel import _gridknn
+
+    if len(cov) >= _COMPILED_MIN_POINTS and _gridknn.available():
+        return _gridknn.smallest_eigenvalues(cov)
+    return _smallest_eigenvalue_numpy(cov)
+
+
+def _smallest_eigenvalue_numpy(
+    cov: FloatArray,
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_], FloatArray]:
+    """:func:`smallest_eigenvalue` by numpy's array arithmetic."""
     a00, a01, a02, a11, a12, a22 = cov.T
     q = (a00 + a11 + a22) / 3.0
     p1 = a01**2 + a02**2 + a12**2
