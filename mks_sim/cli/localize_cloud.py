@@ -94,6 +94,8 @@ def _result_json(loc: Any, n_points: int, dropped: int, kind: str = "") -> dict[
             for s in loc.segments
         ],
         "table_removed": loc.table is not None,
+        "voxel": float(loc.voxel),
+        "object_voxel": float(loc.object_voxel),
         "timing_s": {k: round(v, 4) for k, v in loc.timing.items()},
         "warnings": list(loc.warnings),
     }

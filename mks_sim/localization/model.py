@@ -238,6 +238,28 @@ class ModelFace:
             return pts
         return pts[hull.vertices]
 
+    @functools.cached_property
+    def width(self) -> float:
+        """The face's minimum width: its extent along the in-plane direction where that is
+        least (the convex hull's, exact: the least over the hull's edges of the farthest
+        hull point from the edge's line)."""
+        n = np.asarray(self.normal, dtype=np.float64)
+        u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        ext = np.asarray(self.extremes, dtype=np.float64)
+        uv = np.c_[ext @ u, ext @ np.cross(n, u)]
+        if len(uv) < 3:
+            return 0.0
+        edge = np.roll(uv, -1, axis=0) - uv  # (the hull's points go round it in order)
+        length = np.linalg.norm(edge, axis=1)
+        ok = length > 0
+        if not ok.any():
+            return 0.0
+        d = edge[ok] / length[ok, None]
+        rel = uv[None, :, :] - uv[ok][:, None, :]  # (E, V, 2)
+        far = np.abs(d[:, None, 0] * rel[..., 1] - d[:, None, 1] * rel[..., 0]).max(axis=1)
+        return float(far.min())
+
 
 @dataclass(frozen=True, eq=False)
 class PolyhedralModel:
@@ -392,6 +414,14 @@ class PolyhedralModel:
         return self._build(self.name, corners, self.points * factor, self.normals, faces)
 
     # ---- LocalizableModel
+
+    @functools.cached_property
+    def feature_width(self) -> float:
+        """The median of the faces' minimum widths (:attr:`ModelFace.width`; 0 without
+        faces): how finely a scan must sample the object for its faces to be found
+        (of their samples' hulls: a 50 mm cube 49.7 mm, the industrial part 21.5 mm)."""
+        widths = [f.width for f in self.faces]
+        return float(np.median(widths)) if widths else 0.0
 
     @functools.cached_property
     def vertexes(self) -> FloatArray:

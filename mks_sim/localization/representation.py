@@ -107,12 +107,19 @@ def voxel_average(points: FloatArray, voxel: float, shift: float = 0.0) -> Float
             means = _gridknn.voxel_means(points, voxel, shift)
             if means is not None:
                 return means
+    return voxel_average_cells(points, voxel, shift)[0]
+
+
+def voxel_average_cells(
+    points: FloatArray, voxel: float, shift: float = 0.0
+) -> tuple[FloatArray, NDArray[np.intp]]:
+    """:func:`voxel_average` by numpy, with the (N,) row of each point's centroid."""
     cells = np.floor(points / voxel + shift)  # (+ 0.0 leaves every quotient as it is)
     _, inverse, counts = unique_cells(cells.astype(np.int64), first=False)
     out = np.zeros((len(counts), 3))
     for d in range(3):
         out[:, d] = np.bincount(inverse, weights=points[:, d]) / counts
-    return out
+    return out, inverse
 
 
 def _grid_answers(points: FloatArray) -> bool:
