@@ -150,7 +150,7 @@ def test_a_dense_cube_is_grouped_on_coarser_cells_as_accurately(
 
 def test_narrow_faces_cap_the_object_cells() -> None:
     # the industrial part's faces are 8-60 mm wide (median 21.5 mm): its object points are
-    # averaged again on at most 2.15 mm cells, about as fine as the scene's (~1.8-2.2 mm)
+    # averaged again on at most 2.39 mm cells, near the scene's (~1.8-2.2 mm)
     from mks_sim.geometry.meshes import industrial_part_mesh
     from mks_sim.localization.pipeline import FEATURE_CELLS
 

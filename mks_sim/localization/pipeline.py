@@ -584,10 +584,11 @@ class Localization:
 
 #: ``localize_cloud`` averages a polyhedral model's object points again, when they are more
 #: than ``object_points``, on cells no wider than its :attr:`~PolyhedralModel.feature_width`
-#: over this: a face then still holds about this many cells across its narrowest width
-#: (the industrial part's faces, 21.5 mm, at 3 mm cells lost 3 of 8 noisy tuning scans; at
-#: 2.2 mm none).
-FEATURE_CELLS = 10.0
+#: over this: a face then still holds about this many cells across its narrowest width.
+#: Tuning scans of ``benchmarks/localize.py``: the industrial part's (faces 21.5 mm) at 2 mm
+#: range noise, 8 of 8 found on cells up to 2.7 mm (8 here), 5 of 8 on 3.1 mm (7) and 3.6
+#: (6); 9 keeps a quarter below that edge (the cube's 49.7 mm faces allow 5.5 mm cells).
+FEATURE_CELLS = 9.0
 
 #: localize_cloud's voxel cells are centred on the frame's origin (``floor(p / v + 0.5)``).
 #: A scan given in its table's frame has the table at z = 0: on cells that start at the
@@ -687,8 +688,10 @@ def localize_cloud(
             :attr:`~PolyhedralModel.feature_width` / :data:`FEATURE_CELLS`, when that is at
             least 1.2 voxels (grouping, hypotheses and verification run on them; the pose is
             still polished on the raw points). A dense 50 mm cube's 2,400 points become
-            ~1,200 (grouping 40-50 % faster, the same tuning accuracy); the industrial
-            part's narrow faces keep it as it is. None: never.
+            ~1,200 (its localization 8-16 % faster); the industrial part's narrow faces
+            allow cells of 2.39 mm at most (4-12 %); the tuning scans' 112 of 112 still
+            found, about as accurately (docs/localize_cloud.md, "Point budgets"). None:
+            never.
         m: SPG neighbours.
         min_segment_points: smaller SPG components are ignored.
         min_score: ``found`` needs the best score at least this.
