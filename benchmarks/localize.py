@@ -162,6 +162,12 @@ def summarize(res: list[Outcome]) -> tuple[str, str, str, str]:
     return rate, rot, tr, tm
 
 
+def speed_ratio(ours: list[Outcome], peer: list[Outcome]) -> float | None:
+    """The peer's median time over ours (the unrounded medians)."""
+    mine = statistics.median(r.seconds for r in ours)
+    return statistics.median(r.seconds for r in peer) / mine if mine > 0 else None
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=8)
@@ -221,8 +227,9 @@ def main(argv: list[str] | None = None) -> int:
             outcomes = evaluate(runs, obj, trials)
             r_ours = summarize(outcomes[0])
             r_o3d = summarize(outcomes[1]) if have_o3d else ("-", "-", "-", "-")
+            ratio = speed_ratio(outcomes[0], outcomes[1]) if have_o3d else None
             rows.append(
-                (obj.name, f"{noise * 1000:.1f}", f"{res[0]}x{res[1]}", n_obj, r_ours, r_o3d)
+                (obj.name, f"{noise * 1000:.1f}", f"{res[0]}x{res[1]}", n_obj, r_ours, r_o3d, ratio)
             )
             print(rows[-1], file=sys.stderr)
     write_report(args.out, rows, args.trials, o3d_note, header)
@@ -262,12 +269,13 @@ def write_report(path: str | None, rows, trials: int, o3d_note: str, header: lis
         "a row; a run on a busy machine (load >= 1, flagged above) favours neither reliably.",
         "",
         "| object | noise mm | scan px | scene points | ours success | ours rot deg | ours trans % "
-        "| ours ms | O3D success | O3D rot deg | O3D trans % | O3D ms |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| ours ms | O3D success | O3D rot deg | O3D trans % | O3D ms | O3D ms / ours ms |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for name, noise, res, n, a, b in rows:
+    for name, noise, res, n, a, b, ratio in rows:
         lines.append(
-            f"| {name} | {noise} | {res} | {n} | " + " | ".join(a) + " | " + " | ".join(b) + " |"
+            f"| {name} | {noise} | {res} | {n} | " + " | ".join(a) + " | " + " | ".join(b)
+            + (" | - |" if ratio is None else f" | {ratio:.1f} |")
         )
 
     def total(col: int) -> str:
@@ -276,7 +284,14 @@ def write_report(path: str | None, rows, trials: int, o3d_note: str, header: lis
         faster = sum(1 for r in rows if r[5][3] != "-" and float(r[col][3]) < float(r[9 - col][3]))
         return f"{num}/{den} successes, faster in {faster}/{len(rows)} rows"
 
-    lines += ["", f"Totals — ours: {total(4)}; Open3D: {total(5)}.", ""]
+    ratios = [r[6] for r in rows if r[6] is not None]
+    tenfold = (
+        f" Ours 10x or more faster in {sum(x >= 10.0 for x in ratios)}/{len(rows)} rows "
+        f"({min(ratios):.1f}-{max(ratios):.1f}x; the ratio of the unrounded medians)."
+        if ratios
+        else ""
+    )
+    lines += ["", f"Totals — ours: {total(4)}; Open3D: {total(5)}.{tenfold}", ""]
     if path is None:  # --quick without --out: a smoke run leaves the results file alone
         print("\n".join(lines))
         return
