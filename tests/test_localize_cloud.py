@@ -303,6 +303,9 @@ def test_library_bad_inputs(cube_model: PolyhedralModel) -> None:
         localize_cloud(cube_model, np.full((50, 3), np.nan))
     with pytest.raises(DataError, match="table must be"):
         localize_cloud(cube_model, np.zeros((20, 3)), table="sometimes")  # type: ignore[arg-type]
+    for budget in ({"max_points": 0}, {"object_points": 0}, {"object_points": 2.5}):
+        with pytest.raises(DataError, match="must be an integer >= 1"):
+            localize_cloud(cube_model, np.zeros((20, 3)), **budget)  # type: ignore[arg-type]
     with pytest.raises(NotFound, match="not found"):
         load_model("/nonexistent/model.stl")
     with pytest.raises(DataError, match="LocalizableModel"):

@@ -518,8 +518,11 @@ class SegmentReport:
 
     Attributes:
         indices: (n,) indices of the segment's points in the NaN-free scene (in the
-            voxel-averaged scene when :attr:`Localization.voxel` > 0).
-        planes: planar regions (indices into the segment).
+            voxel-averaged scene when :attr:`Localization.voxel` > 0; when
+            :attr:`Localization.object_voxel` > 0, every averaged point whose coarser cell is
+            in the segment).
+        planes: planar regions (indices into the segment's points as grouped: the coarser
+            cells' averages when :attr:`Localization.object_voxel` > 0).
         vertexes: detected vertexes (segment frame = scene frame).
         on_table: the table plane was used as a face of this segment.
     """
@@ -714,11 +717,18 @@ def localize_cloud(
         :class:`Localization`.
 
     Raises:
-        DataError: malformed points (wrong shape, fewer than 10 finite points) or model.
+        DataError: malformed points (wrong shape, fewer than 10 finite points), model or
+            point budget.
         NotFound: a model name or file that does not exist.
     """
     t0 = time.perf_counter()
     timing: dict[str, float] = {}
+    for name, budget in (("max_points", max_points), ("object_points", object_points)):
+        if (budget is not None or name == "max_points") and (
+            isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 1
+        ):
+            none = " or None" if name == "object_points" else ""
+            raise DataError(f"localize_cloud: {name} must be an integer >= 1{none}, got {budget!r}")
     rng = np.random.default_rng(0) if rng is None else rng
     if isinstance(model, str | Path) or type(model).__name__ == "Mesh":
         model = load_model(model)
