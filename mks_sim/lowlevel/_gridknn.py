@@ -562,9 +562,10 @@ def smallest_eigenvalues(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
     """``(lambda_0, q, safe, variation)`` of N symmetric 3x3 matrices given as (N, 6) upper
     triangles, as :func:`mks_sim.lowlevel.normals.smallest_eigenvalue` computes them with
-    numpy (to the bit), in one compiled pass over the rows on the threads, without its dozen
-    (N,) temporaries (2,500 rows: 0.35 -> 0.15 ms; the arccos and cosine are most of it).
-    Needs :func:`available`."""
+    numpy (to the bit where numpy's float64 arccos and cos are the C library's, as without
+    AVX-512; its SVML loops there differ by a few ulps), in one compiled pass over the rows
+    on the threads, without its dozen (N,) temporaries (2,500 rows: 0.35 -> 0.15 ms; the
+    arccos and cosine are most of it). Needs :func:`available`."""
     out: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]
     out = _load()["smallest_eigenvalues"](np.ascontiguousarray(cov, dtype=np.float64))
     return out

@@ -241,8 +241,9 @@ def smallest_eigenvalue(
     surface variation ``lambda_0 / trace``.
 
     From :data:`_COMPILED_MIN_POINTS` rows, when numba imports, one compiled pass
-    (:func:`mks_sim.lowlevel._gridknn.smallest_eigenvalues`, the same arithmetic to the
-    bit); else numpy's (:func:`_smallest_eigenvalue_numpy`, the reference)."""
+    (:func:`mks_sim.lowlevel._gridknn.smallest_eigenvalues`, the same arithmetic; to the bit
+    where numpy's arccos and cos are the C library's); else numpy's
+    (:func:`_smallest_eigenvalue_numpy`, the reference)."""
     from mks_sim.lowlevel import _gridknn
 
     if len(cov) >= _COMPILED_MIN_POINTS and _gridknn.available():
