@@ -264,6 +264,9 @@ def test_cli_localize_cloud_json_against_known_pose(tmp_path, capsys) -> None:
     out = json.loads(capsys.readouterr().out)
     assert code == 0 and out["found"] is True
     assert out["dropped_nan"] == int(np.isnan(pts[:, 0]).sum())
+    # a 200 x 150 scan: averaged; the object again only on cells >= 1.2 voxels, if at all
+    assert out["voxel"] > 0
+    assert out["object_voxel"] == 0.0 or out["object_voxel"] >= 1.2 * out["voxel"]
     best = out["hypotheses"][0]
     assert set(best) >= {"matrix", "votes", "score", "rmse"}
     M = np.array(best["matrix"])
