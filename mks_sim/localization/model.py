@@ -223,17 +223,23 @@ class ModelFace:
     points: FloatArray
 
     @functools.cached_property
+    def _axes(self) -> tuple[FloatArray, FloatArray]:
+        """Two orthonormal axes in the face's plane (u, n x u)."""
+        n = np.asarray(self.normal, dtype=np.float64)
+        u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        return u, np.cross(n, u)
+
+    @functools.cached_property
     def extremes(self) -> FloatArray:
         """(E, 3) the samples on the convex hull of the face (in its plane): the extent of
         the face along any direction (ptp of the projections) is the extent of these."""
         pts = np.asarray(self.points, dtype=np.float64)
         if len(pts) < 4:
             return pts
-        n = np.asarray(self.normal, dtype=np.float64)
-        u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-        u /= np.linalg.norm(u)
+        u, v = self._axes
         try:
-            hull = ConvexHull(np.c_[pts @ u, pts @ np.cross(n, u)])
+            hull = ConvexHull(np.c_[pts @ u, pts @ v])
         except QhullError:  # degenerate (collinear) samples: keep them all
             return pts
         return pts[hull.vertices]
@@ -243,11 +249,9 @@ class ModelFace:
         """The face's minimum width: its extent along the in-plane direction where that is
         least (the convex hull's, exact: the least over the hull's edges of the farthest
         hull point from the edge's line)."""
-        n = np.asarray(self.normal, dtype=np.float64)
-        u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-        u /= np.linalg.norm(u)
+        u, v = self._axes
         ext = np.asarray(self.extremes, dtype=np.float64)
-        uv = np.c_[ext @ u, ext @ np.cross(n, u)]
+        uv = np.c_[ext @ u, ext @ v]
         if len(uv) < 3:
             return 0.0
         edge = np.roll(uv, -1, axis=0) - uv  # (the hull's points go round it in order)
