@@ -582,9 +582,7 @@ def test_compiled_ball_and_plane_queries_follow_the_trees_rule() -> None:
             np.testing.assert_array_equal(_gridknn.ball_rows(pts, c, r), want)
             ties += int(np.sum(np.sum((pts - c) ** 2, axis=1) == r * r))
         xy = np.ascontiguousarray(pts[:, :2])
-        queries = np.vstack(
-            [rng.integers(-14, 15, size=(50, 2)) / 8.0, xy[:3], [[100.0, -100.0]]]
-        )
+        queries = np.vstack([rng.integers(-14, 15, size=(50, 2)) / 8.0, xy[:3], [[100.0, -100.0]]])
         tree2 = cKDTree(xy)
         lens, flat = _gridknn.plane_pairs(xy, queries, r)
         assert lens.shape == (len(queries),) and len(flat) == lens.sum()
@@ -633,3 +631,65 @@ def test_near_points_answer_as_the_trees_upper_bound_query() -> None:
         batch_explained(model, poses, NearPoints(scene), 0.003),
         batch_explained(model, poses, cKDTree(scene), 0.003),
     )
+
+
+def _overhang_scene() -> tuple[np.ndarray, np.ndarray, np.ndarray, Plane, np.ndarray]:
+    """The slab on its post of the overhang test, resting on the table, with the table seen
+    under its rim and under its middle."""
+    rng = np.random.default_rng(5)
+    slab, slab_n = sample_surface(box_mesh((0.06, 0.06, 0.01)), 8000, rng=rng)
+    post, post_n = sample_surface(box_mesh((0.004, 0.004, 0.02)), 300, rng=rng)
+    pts = np.concatenate([slab, post + [0.0, 0.0, -0.015]])
+    nrm = np.concatenate([slab_n, post_n])
+    T = make_transform(np.eye(3), [0.0, 0.0, 0.775])
+    g = np.mgrid[-0.05:0.05:0.002, -0.05:0.05:0.002].reshape(2, -1).T
+    top = (slab @ T[:3, :3].T + T[:3, 3])[slab_n[:, 2] > 0.5]
+    cloud = np.concatenate([top, np.c_[g, np.full(len(g), 0.75)]])
+    return pts, nrm, cloud, Plane(np.array([0.0, 0.0, 1.0]), 0.75), T
+
+
+@pytest.mark.parametrize("scene", ["cube", "overhang"])
+def test_compiled_consistency_counts_as_numpy_with_the_same_nearest_samples(scene: str) -> None:
+    """The compiled check (two passes around the lookup grid) and numpy's with the same
+    surface: the same counts for the true pose and for 60 poses turned and shifted about it
+    (near misses, poses sunk into the table, wrong poses whose nearest samples face away),
+    with and without the sensors' positions and a mask of points explained elsewhere; and
+    for the true pose the brute force's counts."""
+    from mks_sim.lowlevel import _gridknn
+
+    if not _gridknn.available():
+        pytest.skip("numba unavailable")
+    from scipy.spatial.transform import Rotation
+
+    if scene == "cube":
+        pts, nrm, cloud, table, T0 = _cube_scene(6, 4000, (0.0, 0.0, 0.0))
+    else:
+        pts, nrm, cloud, table, T0 = _overhang_scene()
+    surface = ModelSurface.from_arrays(pts, nrm).with_lookup()
+    d = 0.003
+    rng = np.random.default_rng(11)
+    elsewhere = rng.random(len(cloud)) < 0.1
+    poses = [T0]
+    for k in range(60):
+        T = T0.copy()
+        angle = [0.02, 0.3, 2.0][k % 3]
+        T[:3, :3] = Rotation.from_rotvec(rng.normal(size=3) * angle).as_matrix() @ T0[:3, :3]
+        T[:3, 3] += rng.normal(size=3) * [0.002, 0.01, 0.03][(k // 3) % 3]
+        poses.append(T)
+    counted = {"inside": 0, "below": 0, "unexplained": 0}
+    for k, T in enumerate(poses):
+        for views, mask in (((), None), (_VIEWS, elsewhere)):
+            vp = np.asarray(views, dtype=np.float64).reshape(-1, 3) if len(views) else None
+            args = (T, pts, nrm, cloud, table, d)
+            kw = {"surface": surface, "viewpoints": vp, "elsewhere": mask}
+            fast = consistency(*args, **kw, compiled=True)
+            slow = consistency(*args, **kw, compiled=False)
+            assert fast == slow, (k, views)
+            for f in counted:
+                counted[f] += getattr(fast, f)
+            if k == 0 and mask is None:
+                brute = _brute(T, pts, nrm, cloud, table, d, views)
+                got = (fast.explained, fast.inside, fast.below, fast.penetration, fast.unexplained)
+                assert got[:3] == brute[:3] and got[4] == brute[4]
+    # the poses exercise every branch: points inside, under the model, and left unexplained
+    assert min(counted.values()) > 0, counted

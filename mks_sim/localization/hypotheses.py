@@ -497,7 +497,7 @@ def vertex_hypotheses(
         compiled: those corner hypotheses in one compiled pass when numba imports
             (:func:`mks_sim.models._refine_kernels.vertex_poses`: the same tests in the same
             order; the rotations' and the products' rounding may differ: ``localize_cloud``
-            asks for it, the workstation keeps numpy's).
+            and the workstation ask for it).
 
     Returns:
         At most ``keep`` hypotheses, most voted first (ties: better quick inlier fraction).
@@ -694,8 +694,8 @@ def plane_pair_hypotheses(
         keep: hypotheses returned (best quick inlier fraction first).
         compiled: the poses in one compiled pass when numba imports
             (:func:`mks_sim.models._refine_kernels.plane_pair_poses`: the same tests, in the
-            same order; the rounding of the products may differ: ``localize_cloud`` asks for
-            it, the workstation keeps numpy's).
+            same order; the rounding of the products may differ: ``localize_cloud`` and the
+            workstation ask for it).
     """
     sub = scene_points[:: max(1, len(scene_points) // 80)]
     extremes, offsets = model.face_extremes

@@ -124,7 +124,7 @@ POLYHEDRAL_VERIFY: dict[str, Any] = {
 #: :func:`localize_cloud`'s ICPs run their iterations in one compiled call
 #: (``icp_point_to_plane(fused=True)``: 2-2.6x faster, poses within 1e-15 of the loop's;
 #: the tuning scans' localizations 5 % faster, up to 9 % for the part, the same successes
-#: and median errors). The workstation keeps the loop: its poses stay the same to the bit.
+#: and median errors). The workstation's path runs them too (:data:`WORKSTATION_COMPILED`).
 FUSED_ICP = True
 #: :func:`localize_cloud`'s verification: the workstation's settings, but only the two best
 #: prescreened starts refined (the workstation refines four). On the tuning scans of the
@@ -136,6 +136,18 @@ CLOUD_VERIFY: dict[str, Any] = {
     "prescreen": 2,
     "icp_fused": FUSED_ICP,
     "compiled_score": FUSED_ICP,  # (score_pose in one compiled pass, its last bits its own)
+}
+#: The workstation's polyhedral path runs the compiled passes :func:`localize_cloud` runs
+#: (each falls back to numpy without numba): the corner and plane-pair poses in one pass,
+#: the ICPs' iterations fused, the scores compiled. The same steps; the rounding of the
+#: poses may differ by ~1e-15 (tuning seeds 1000-1019, 75 localizations of the cube, the
+#: part and the sphere: the same results to the reported digits; 15 % less processing for
+#: the cube and the part).
+WORKSTATION_COMPILED = FUSED_ICP
+#: The options of the workstation's ICPs and scores (:data:`WORKSTATION_COMPILED`).
+COMPILED_VERIFY: dict[str, Any] = {
+    "icp_fused": WORKSTATION_COMPILED,
+    "compiled_score": WORKSTATION_COMPILED,
 }
 #: A polyhedral pose that leaves more off-table points in its bounding sphere unexplained
 #: than this fraction of the points it explains covers only part of an object (a cube pose
@@ -289,8 +301,9 @@ def polyhedral_candidates(
         noise = float(np.median([p.plane.rmse for p in seg.planes])) if seg.planes else 0.0
         inlier = max(1.0 * spacing, rep.voxel, 3.0 * noise)
         hyps = vertex_hypotheses(
-            model, seg.vertexes, seg.points, vote_distance=4 * spacing, rotinv=rotinv
-        )
+            model, seg.vertexes, seg.points, vote_distance=4 * spacing, rotinv=rotinv,
+            compiled=WORKSTATION_COMPILED,
+        )  # fmt: skip
         plans.append((_promise(surface, seg.points, hyps, inlier, rng), si, hyps, inlier))
     plans.sort(key=lambda p: -p[0])
     t_hyp += time.perf_counter() - t
@@ -308,10 +321,11 @@ def polyhedral_candidates(
             cover_distance=max(inlier, 1.5 * spacing, rep.voxel),
             min_score=min_score,
             max_icp=max_icp,
-            verify_options={**POLYHEDRAL_VERIFY, "prescreen": prescreen},
+            verify_options={**POLYHEDRAL_VERIFY, "prescreen": prescreen, **COMPILED_VERIFY},
             rng=rng,
             surface=surface,
             symmetries=syms,
+            compiled_pairs=WORKSTATION_COMPILED,
         )
         t_hyp += dt_h
         t_ver += dt_v
@@ -1567,7 +1581,7 @@ def _rest(
     icp = icp_point_to_plane(
         surface, near, T0, max_distance=max(4 * d, 0.1 * surface.size), axis=face
     )
-    score = score_pose(surface, near, icp.matrix, d)[0]
+    score = score_pose(surface, near, icp.matrix, d, WORKSTATION_COMPILED)[0]
     h = PoseHypothesis(
         icp.matrix,
         icp.matrix[:3, 3].copy(),
@@ -1778,6 +1792,7 @@ def _hop(
         max_scene_points=1000,
         coarse_points=300,
         rng=rng,
+        **COMPILED_VERIFY,
     )
     return [v.hypothesis for v in verified[:3]]
 
@@ -1817,6 +1832,7 @@ def _refine_near(
             max_icp=1,
             max_scene_points=1000,
             rng=rng,
+            **COMPILED_VERIFY,
         )
         out.extend(v.hypothesis for v in verified)
     return out

@@ -74,6 +74,9 @@ class RepresentationConfig:
             cloud it would thin several-fold.
         viewpoint: (x, y, z) sensor position (orients normals); None: away from each object
             component's centroid.
+        compiled: the segmentation's planes by the compiled fit when numba imports
+            (``fit_plane(compiled=True)``: the same steps, the sums' and the eigen-solver's
+            rounding its own); False: numpy's.
     """
 
     table_z_m: float | None = None
@@ -85,6 +88,7 @@ class RepresentationConfig:
     max_points: int = 100000
     max_voxel_spacings: float | None = None
     viewpoint: tuple[float, float, float] | None = None
+    compiled: bool = True
 
 
 def _tree(points: FloatArray) -> cKDTree:
@@ -497,6 +501,7 @@ class Representation:
             surface_normals=self.normals,
             seeds=self.seeds,
             min_points=self.config.min_region_points,
+            compiled_fit=self.config.compiled,
         )
 
     def planes_of(self, component: IntArray, min_points: int = 20) -> list[Any]:

@@ -43,11 +43,13 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 
-#: The table's plane (without ``near_z``) is fit to at most this many of its RANSAC inliers,
-#: evenly strided (as many as RANSAC counts its candidates on): the 10,000 inliers of a
+#: The table's plane is fit to at most this many of its RANSAC inliers, evenly strided (as
+#: many as RANSAC counts its candidates on), by the compiled fit: the 10,000 inliers of a
 #: 240 x 180 scan gave the same successes in less time (``localize_cloud``'s tuning trials:
 #: 112 scans of ``benchmarks/localize.py``'s rows, 110 found either way; 1.2-1.8 ms less on
-#: the cube's 240 x 180 rows; 2,000 lost a noisy part).
+#: the cube's 240 x 180 rows; 2,000 lost a noisy part). With ``near_z`` (the workstation's
+#: 13,000-18,000 table points): 3.2-3.7 -> 1.1-1.5 ms, the plane within 0.003 deg and 7 um
+#: of the fit to all of them.
 TABLE_FIT_POINTS = 4000
 
 
@@ -78,7 +80,9 @@ def find_table(
         low = np.compress(low_mask, points, axis=0)
         if len(low) < max(50, min_fraction * len(points)):
             return None, 0.0, none
-        plane, inl = fit_plane_ransac(low, 0.003, rng, iterations=100)
+        plane, inl = fit_plane_ransac(
+            low, 0.003, rng, iterations=100, fit_points=TABLE_FIT_POINTS, compiled_fit=True
+        )
         if plane.normal[2] < 0:
             plane = plane.flipped()
         if plane.normal[2] < 0.95:
@@ -414,6 +418,7 @@ def consistency(
     elsewhere: NDArray[np.bool_] | None = None,
     surface: ModelSurface | None = None,
     viewpoints: FloatArray | None = None,
+    compiled: bool | None = None,
 ) -> Consistency:
     """Does the posed model (``T`` model -> world) agree with what the sensors saw?
 
@@ -438,7 +443,20 @@ def consistency(
     (within :data:`VIEW_FACING_COS`) explains a point. Without it a pose one wall thickness
     nearer the sensors explains the wall's seen face with its far face (the generated
     L-bracket, tuning seed 1032: 9.7 mm off, chosen at every other look).
+
+    ``compiled``: the whole check in one compiled pass
+    (:func:`mks_sim.localization._verify_kernels.consistency_counts`: the same steps and
+    rules, products summed in their own order; 2.5 -> 0.3 ms for the workstation's cube)
+    or by numpy; None: compiled when numba imports, ``surface`` has its lookup grid and no
+    ``cloud_tree`` is given.
     """
+    lookup = surface is not None and surface.points is surface_pts and surface.lookup is not None
+    if compiled is None:
+        compiled = lookup and cloud_tree is None and _gridknn.available()
+    if compiled and lookup and surface is not None:
+        return _consistency_compiled(
+            T, surface_pts, surface_nrm, cloud, table, d, elsewhere, viewpoints, surface
+        )
     R, t = T[:3, :3], T[:3, 3]
     P = surface_pts @ R.T + t
     N = surface_nrm @ R.T
@@ -546,6 +564,52 @@ def consistency(
     bad = inside_n + below_n
     ok = bool(explained_n >= 30 and bad <= 0.05 * max(explained_n, 1) and penetration <= 0.02)
     return Consistency(explained_n, inside_n, below_n, penetration, ok, unexplained_n)
+
+
+def _consistency_compiled(
+    T: FloatArray,
+    surface_pts: FloatArray,
+    surface_nrm: FloatArray,
+    cloud: FloatArray,
+    table: Plane | None,
+    d: float,
+    elsewhere: NDArray[np.bool_] | None,
+    viewpoints: FloatArray | None,
+    surface: ModelSurface,
+) -> Consistency:
+    """:func:`consistency` in two compiled passes around the model's nearest-sample lookup
+    (the same nearest samples: the lookup grid's, the tree's off it)."""
+    from mks_sim.localization._verify_kernels import consistency_counts, posed_samples
+
+    f64 = np.float64
+    T = np.asarray(T, dtype=f64)
+    R = np.ascontiguousarray(T[:3, :3])
+    t = np.ascontiguousarray(T[:3, 3])
+    S = np.ascontiguousarray(surface_pts, dtype=f64)
+    Nm = np.ascontiguousarray(surface_nrm, dtype=f64)
+    vps = np.zeros((0, 3)) if viewpoints is None else np.asarray(viewpoints, f64).reshape(-1, 3)
+    tn = np.zeros(3) if table is None else np.asarray(table.normal, dtype=f64)
+    toff = 0.0 if table is None else float(table.offset)
+    P, seen, centre, radius, penetration, lowest = posed_samples(
+        R, t, S, Nm, np.ascontiguousarray(vps), float(VIEW_FACING_COS), table is not None, tn,
+        toff, float(d),
+    )  # fmt: skip
+    cloud = np.ascontiguousarray(cloud, dtype=f64)
+    near = _gridknn.ball_rows(cloud, centre, radius + 2 * d)
+    q = (cloud[near] - t) @ R
+    dist, idx = surface.nearest(q, np.inf)
+    explained_n, inside_n, below_n, unexplained_n = consistency_counts(
+        P, seen, S, Nm, cloud, near.astype(np.int64), np.ascontiguousarray(q),
+        np.ascontiguousarray(dist), idx.astype(np.int64), table is not None, tn, toff,
+        bool(table is not None and lowest <= d), float(d),
+        np.zeros(0, dtype=bool) if elsewhere is None else np.ascontiguousarray(elsewhere, bool),
+        float(max(0.5 * d, _model_spacing(surface_pts))), _DIRS8,
+    )  # fmt: skip
+    bad = inside_n + below_n
+    ok = bool(explained_n >= 30 and bad <= 0.05 * max(explained_n, 1) and penetration <= 0.02)
+    return Consistency(
+        int(explained_n), int(inside_n), int(below_n), float(penetration), ok, int(unexplained_n)
+    )
 
 
 def rank(

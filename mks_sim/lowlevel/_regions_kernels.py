@@ -281,3 +281,85 @@ def absorb_boundary(
             return
         for i in range(n):
             labels[i] = new[i]
+
+
+@nb.njit(cache=True)
+def sphere_lm(pts: np.ndarray, x0: np.ndarray) -> tuple[np.ndarray, float]:  # pragma: no cover
+    """The Levenberg-Marquardt refinement of :func:`mks_sim.lowlevel.regions.fit_sphere`
+    (centre and radius ``x0`` to the minimum of the radial residuals ``|p - c| - r``), the
+    same steps in one compiled call: the Jacobian's normal equations summed row by row
+    (numpy's products sum in their own order: the last bits may differ). Returns (x, rmse)."""
+    n = pts.shape[0]
+    x = x0.copy()
+    d = np.empty((n, 3))
+    length = np.empty(n)
+    res = np.empty(n)
+    d_new = np.empty((n, 3))
+    length_new = np.empty(n)
+    res_new = np.empty(n)
+    cost = 0.0
+    for i in range(n):
+        for a in range(3):
+            d[i, a] = pts[i, a] - x[a]
+        length[i] = np.sqrt(d[i, 0] * d[i, 0] + d[i, 1] * d[i, 1] + d[i, 2] * d[i, 2])
+        res[i] = length[i] - x[3]
+        cost += res[i] * res[i]
+    damping = 1e-3
+    JtJ = np.empty((4, 4))
+    Jtr = np.empty(4)
+    A = np.empty((4, 4))
+    j = np.empty(4)
+    for _ in range(100):
+        JtJ[:] = 0.0
+        Jtr[:] = 0.0
+        for i in range(n):
+            inv = 1.0 / max(length[i], 1e-300)
+            j[0] = -d[i, 0] * inv
+            j[1] = -d[i, 1] * inv
+            j[2] = -d[i, 2] * inv
+            j[3] = -1.0
+            for a in range(4):
+                Jtr[a] += j[a] * res[i]
+                for b in range(4):
+                    JtJ[a, b] += j[a] * j[b]
+        improved = False
+        step = np.zeros(4)
+        cost_new = cost
+        while damping < 1e12:
+            for a in range(4):
+                for b in range(4):
+                    A[a, b] = JtJ[a, b]
+                A[a, a] += damping * (JtJ[a, a] + 1e-300)
+            step[:] = np.linalg.solve(A, -Jtr)
+            cost_new = 0.0
+            for i in range(n):
+                for a in range(3):
+                    d_new[i, a] = pts[i, a] - (x[a] + step[a])
+                length_new[i] = np.sqrt(
+                    d_new[i, 0] * d_new[i, 0]
+                    + d_new[i, 1] * d_new[i, 1]
+                    + d_new[i, 2] * d_new[i, 2]
+                )
+                res_new[i] = length_new[i] - (x[3] + step[3])
+                cost_new += res_new[i] * res_new[i]
+            if cost_new <= cost:
+                improved = True
+                break
+            damping *= 10.0
+        if not improved:
+            break
+        x_norm = np.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2] + x[3] * x[3])
+        s_norm = np.sqrt(step[0] ** 2 + step[1] ** 2 + step[2] ** 2 + step[3] ** 2)
+        converged = cost - cost_new <= 1e-10 * max(cost, 1e-300) or s_norm <= 1e-10 * (
+            x_norm + 1e-12
+        )
+        for a in range(4):
+            x[a] += step[a]
+        d, d_new = d_new, d
+        length, length_new = length_new, length
+        res, res_new = res_new, res
+        cost = cost_new
+        damping = max(damping / 10.0, 1e-12)
+        if converged:
+            break
+    return x, np.sqrt(cost / n)
