@@ -239,18 +239,19 @@ def object_segments(
     sizes = np.bincount(merged)
     member_of = np.full(len(objects), -1, dtype=np.intp)
     member_of[idx] = merged
+    # each plane's fraction of points in each segment (one count per plane, not per pair)
+    regions = [r for r in rep.segmentation.planes if len(r.indices) >= rep.config.min_region_points]
+    share = [
+        np.bincount(member_of[r.indices] + 1, minlength=len(sizes) + 1)[1:] / len(r.indices)
+        for r in regions
+    ]
     out: list[Segment] = []
     for c in np.argsort(-sizes, kind="stable"):
         if sizes[c] < min_points:
             break
         members = idx[merged == c]
         seg_pts = objects[members]
-        planes = [
-            r
-            for r in rep.segmentation.planes
-            if len(r.indices) >= rep.config.min_region_points
-            and np.mean(member_of[r.indices] == c) >= 0.5
-        ]
+        planes = [r for r, f in zip(regions, share, strict=True) if f[c] >= 0.5]
         on_table = rep.touches_table(seg_pts)
         verts = rep.plane_vertexes(planes, on_table)
         out.append(Segment(members, seg_pts, tuple(planes), verts, on_table))
