@@ -9,6 +9,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from mks_sim.geometry.meshes import box_mesh, sample_surface, uv_sphere
 from mks_sim.localization import RepresentationConfig, representation_of
@@ -93,3 +94,41 @@ def test_a_detected_sphere_reaching_through_the_table_is_not_set_aside() -> None
     shell = np.abs(np.linalg.norm(p - centre, axis=1) - 0.044) < 0.003
     assert (face & shell).sum() > 30  # the shell does cut the face
     assert kept[face & shell].mean() > 0.9
+
+
+def test_sphere_scores_without_a_tree_are_the_trees() -> None:
+    """``score_spheres`` by the compiled ball and coverage passes (:class:`BallQueries`) and
+    by a k-d tree: the same checks (coverage, inside, explained points) for seeds on the
+    sphere, on the cube and in the air; the same centres to a nanometre (the shell's points
+    come in another order, so the fits' sums round in their own); and the sphere's centre
+    found within 0.5 mm of the truth."""
+    from scipy.spatial import cKDTree
+
+    from mks_sim.localization.hypotheses import BallQueries, score_spheres
+    from mks_sim.lowlevel import _gridknn
+
+    if not _gridknn.available():
+        pytest.skip("numba unavailable")
+    rep = representation_of(_scene(3), RepresentationConfig())
+    objects = rep.objects
+    d = _noise_scale(rep.table, rep.spacing)
+    rng = np.random.default_rng(4)
+    seeds = [SPHERE + rng.normal(0.0, 0.004, 3) for _ in range(6)]
+    seeds += [CUBE + rng.normal(0.0, 0.01, 3) for _ in range(4)] + [SPHERE + [0.0, 0.0, 0.2]]
+    fast = score_spheres(objects, seeds, 0.03, d)
+    slow = score_spheres(objects, seeds, 0.03, d, tree=cKDTree(objects))
+    assert len(fast) == len(slow) >= 6
+    for (cf, hf, kf), (cs, hs, ks) in zip(fast, slow, strict=True):
+        assert cf == cs
+        assert {k: kf[k] for k in ("coverage", "explained", "inside", "ok")} == {
+            k: ks[k] for k in ("coverage", "explained", "inside", "ok")
+        }
+        assert np.allclose(hf.matrix, hs.matrix, rtol=0, atol=1e-9)
+    best = max(fast, key=lambda s: (s[2]["ok"], s[0]))
+    assert best[2]["ok"] and np.linalg.norm(best[1].matrix[:3, 3] - SPHERE) < 5e-4
+    # the ball query takes the tree's points (ascending)
+    q = BallQueries(objects)
+    c = SPHERE + [0.001, 0.0, 0.0]
+    assert np.array_equal(
+        q.query_ball_point(c, 0.031), sorted(cKDTree(objects).query_ball_point(c, 0.031))
+    )

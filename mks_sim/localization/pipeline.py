@@ -1217,10 +1217,7 @@ def _set_aside_spheres(
     for radius in _known_sphere_radii():
         sub = np.flatnonzero(keep)
         seeds = sphere_centre_hough(objects[sub], radius, normals[sub])
-        tree = rep.objects_tree if len(sub) == len(objects) else None
-        found = [
-            h for _, h, chk in score_spheres(objects[sub], seeds, radius, d0, tree=tree) if chk["ok"]
-        ]  # fmt: skip
+        found = [h for _, h, chk in score_spheres(objects[sub], seeds, radius, d0) if chk["ok"]]
         for h in found:
             shell = np.abs(np.linalg.norm(objects - h.matrix[:3, 3], axis=1) - radius)
             keep &= shell > d0 + 0.001
@@ -1291,8 +1288,8 @@ def localize_polyhedral(
     timing["verification"] = 0.0
     surface_pts = np.asarray(model.surface_points(), dtype=np.float64)
     surface_nrm = np.asarray(model.surface_normals(), dtype=np.float64)
-    # the coverage tests' (once, not per test; the representation's when nothing was set aside)
-    objects_tree = rep.objects_tree if bool(keep.all()) else NearPoints(objects)
+    # the coverage tests' questions of the object points, by the compiled grid (no tree)
+    objects_tree = NearPoints(objects)
     checked: dict[int, tuple[PoseHypothesis, Consistency]] = {}
 
     def check(h: PoseHypothesis) -> Consistency:
@@ -1870,7 +1867,7 @@ def localize_sphere(
     extra["candidates"] = len(seeds)
 
     t = time.perf_counter()
-    scored = score_spheres(objects, seeds, radius, d, tree=rep.objects_tree)
+    scored = score_spheres(objects, seeds, radius, d)
     scored.sort(key=lambda x: (not x[2]["ok"], -x[0], x[1].rmse))
     extra["inlier_distance_m"] = d
     extra["checks"] = [chk for _, _, chk in scored[:5]]
