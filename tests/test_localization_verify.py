@@ -693,3 +693,23 @@ def test_compiled_consistency_counts_as_numpy_with_the_same_nearest_samples(scen
                 assert got[:3] == brute[:3] and got[4] == brute[4]
     # the poses exercise every branch: points inside, under the model, and left unexplained
     assert min(counted.values()) > 0, counted
+
+
+def test_compiled_consistency_with_no_sample_seen() -> None:
+    """A model whose every sample faces down (no surface the sensors could see) explains no
+    point, compiled as by numpy, though points lie on it."""
+    from mks_sim.lowlevel import _gridknn
+
+    if not _gridknn.available():
+        pytest.skip("numba unavailable")
+    g = np.mgrid[-0.02:0.02:0.001, -0.02:0.02:0.001].reshape(2, -1).T
+    pts = np.c_[g, np.zeros(len(g))]
+    nrm = np.tile([0.0, 0.0, -1.0], (len(pts), 1))
+    surface = ModelSurface.from_arrays(pts, nrm).with_lookup()
+    T = make_transform(np.eye(3), [0.0, 0.0, 0.8])
+    cloud = pts[::7] + T[:3, 3]
+    table = Plane(np.array([0.0, 0.0, 1.0]), 0.75)
+    fast = consistency(T, pts, nrm, cloud, table, 0.003, surface=surface, compiled=True)
+    slow = consistency(T, pts, nrm, cloud, table, 0.003, surface=surface, compiled=False)
+    assert fast == slow
+    assert fast.explained == 0 and fast.unexplained == len(cloud)

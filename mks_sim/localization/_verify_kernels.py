@@ -216,9 +216,9 @@ def consistency_counts(
         if close and not explained:
             # a point whose nearest sample faces away may still have a seen one within d
             if not built:
-                g_lo, g_h, g_dims, g_start, g_order = _grid3(
-                    S, np.flatnonzero(seen), d * (1.0 + 1e-9)
-                )
+                seen_rows = np.flatnonzero(seen)
+                if seen_rows.shape[0]:  # (none seen: no point is explained)
+                    g_lo, g_h, g_dims, g_start, g_order = _grid3(S, seen_rows, d * (1.0 + 1e-9))
                 built = True
             if g_order.shape[0]:
                 explained = _any_within(

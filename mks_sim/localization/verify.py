@@ -444,16 +444,17 @@ def consistency(
     nearer the sensors explains the wall's seen face with its far face (the generated
     L-bracket, tuning seed 1032: 9.7 mm off, chosen at every other look).
 
-    ``compiled``: the whole check in one compiled pass
-    (:func:`mks_sim.localization._verify_kernels.consistency_counts`: the same steps and
-    rules, products summed in their own order; 2.5 -> 0.3 ms for the workstation's cube)
-    or by numpy; None: compiled when numba imports, ``surface`` has its lookup grid and no
-    ``cloud_tree`` is given.
+    ``compiled``: the check in two compiled passes around the lookup grid's nearest samples
+    (:mod:`mks_sim.localization._verify_kernels`: the same steps and rules, products summed
+    in their own order; the workstation's checks 2.5-2.8 -> 0.5-1.1 ms) or by numpy; it
+    needs numba and ``surface`` with its lookup grid (else numpy's, whatever is asked).
+    None: compiled when those are there and no ``cloud_tree`` is given (a caller's tree
+    keeps numpy's, as bin picking's does).
     """
     lookup = surface is not None and surface.points is surface_pts and surface.lookup is not None
     if compiled is None:
-        compiled = lookup and cloud_tree is None and _gridknn.available()
-    if compiled and lookup and surface is not None:
+        compiled = cloud_tree is None
+    if compiled and lookup and surface is not None and _gridknn.available():
         return _consistency_compiled(
             T, surface_pts, surface_nrm, cloud, table, d, elsewhere, viewpoints, surface
         )

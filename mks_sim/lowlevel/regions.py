@@ -269,8 +269,8 @@ def fit_sphere(points: ArrayLike, *, compiled: bool | None = None) -> SphereFit:
         points: (N >= 4, 3) points.
         compiled: the refinement in one compiled call
             (:func:`mks_sim.lowlevel._regions_kernels.sphere_lm`: the same steps, the normal
-            equations summed in their own order) or by numpy; None: compiled from
-            :data:`SPHERE_COMPILED_MIN_POINTS` points when numba imports.
+            equations summed in their own order) or by numpy (always without numba); None:
+            compiled from :data:`SPHERE_COMPILED_MIN_POINTS` points.
 
     Returns:
         :class:`SphereFit`.
@@ -291,8 +291,8 @@ def fit_sphere(points: ArrayLike, *, compiled: bool | None = None) -> SphereFit:
     # driver overhead); starts at the algebraic fit, which is already close.
     x = np.append(center0, np.sqrt(r2))
     if compiled is None:
-        compiled = len(pts) >= SPHERE_COMPILED_MIN_POINTS and _gridknn.available()
-    if compiled:
+        compiled = len(pts) >= SPHERE_COMPILED_MIN_POINTS
+    if compiled and _gridknn.available():
         from mks_sim.lowlevel._regions_kernels import sphere_lm
 
         xc, rmse_c = sphere_lm(np.ascontiguousarray(pts, dtype=np.float64), x)
