@@ -12,99 +12,30 @@ import math
 import numba as nb
 import numpy as np
 
+from mks_sim.lowlevel._gridknn_kernels import _plane_grid
+
 
 @nb.njit(cache=True)
 def _grid2(xy, h):  # pragma: no cover
-    """A 2-D bucket grid of ``xy`` with cells of edge ``h``: (lo, nx, ny, start, order) with
-    the points of cell (i, j) at ``order[start[i * ny + j]:start[i * ny + j + 1]]``."""
+    """A 2-D bucket grid of ``xy`` with cells of edge at least ``h`` (wider when that would
+    make over about 4 cells a point, as :func:`mks_sim.lowlevel._gridknn.plane_pairs`
+    sizes its grid): (lo, h, nx, ny, start, order) with the points of cell (i, j) at
+    ``order[start[i * ny + j]:start[i * ny + j + 1]]`` (``_plane_grid``'s counting sort)."""
     n = xy.shape[0]
-    lo0 = np.inf
-    lo1 = np.inf
-    hi0 = -np.inf
-    hi1 = -np.inf
+    lo = np.full(2, np.inf)
+    hi = np.full(2, -np.inf)
     for i in range(n):
-        lo0 = min(lo0, xy[i, 0])
-        lo1 = min(lo1, xy[i, 1])
-        hi0 = max(hi0, xy[i, 0])
-        hi1 = max(hi1, xy[i, 1])
-    # at most about 4 cells a point: a small radius over a wide footprint gets wider cells
+        for a in range(2):
+            lo[a] = min(lo[a], xy[i, a])
+            hi[a] = max(hi[a], xy[i, a])
     cells = 4.0 * n + 16.0
-    h = max(h, math.sqrt((hi0 - lo0) * (hi1 - lo1) / cells), max(hi0 - lo0, hi1 - lo1) / cells)
-    nx = int((hi0 - lo0) / h) + 1
-    ny = int((hi1 - lo1) / h) + 1
-    key = np.empty(n, np.int64)
-    start = np.zeros(nx * ny + 1, np.int64)
-    for i in range(n):
-        cx = min(int((xy[i, 0] - lo0) / h), nx - 1)
-        cy = min(int((xy[i, 1] - lo1) / h), ny - 1)
-        key[i] = cx * ny + cy
-        start[key[i] + 1] += 1
-    for c in range(nx * ny):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    order = np.empty(n, np.int64)
-    for i in range(n):
-        order[fill[key[i]]] = i
-        fill[key[i]] += 1
-    return lo0, lo1, h, nx, ny, start, order
-
-
-@nb.njit(cache=True)
-def _grid3(pts, sel, h):  # pragma: no cover
-    """A 3-D bucket grid of ``pts[sel]`` with cells of edge at least ``h`` (wider when that
-    would make over about 8 cells a point): (lo, h, dims, start, order) with the rows of
-    cell (i, j, k) at ``order[start[c]:start[c + 1]]``, ``c = (i * ny + j) * nz + k``."""
-    n = sel.shape[0]
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
-    for u in range(n):
-        for a in range(3):
-            lo[a] = min(lo[a], pts[sel[u], a])
-            hi[a] = max(hi[a], pts[sel[u], a])
-    vol = 1.0
-    for a in range(3):
-        vol *= max(hi[a] - lo[a], h)
-    h = max(h, (vol / (8.0 * n + 64.0)) ** (1.0 / 3.0))
-    dims = np.empty(3, np.int64)
-    for a in range(3):
-        dims[a] = int((hi[a] - lo[a]) / h) + 1
-    key = np.empty(n, np.int64)
-    start = np.zeros(dims[0] * dims[1] * dims[2] + 1, np.int64)
-    for u in range(n):
-        c = 0
-        for a in range(3):
-            c = c * dims[a] + min(int((pts[sel[u], a] - lo[a]) / h), dims[a] - 1)
-        key[u] = c
-        start[c + 1] += 1
-    for c in range(start.shape[0] - 1):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    order = np.empty(n, np.int64)
-    for u in range(n):
-        order[fill[key[u]]] = sel[u]
-        fill[key[u]] += 1
-    return lo, h, dims, start, order
-
-
-@nb.njit(cache=True)
-def _any_within(x0, x1, x2, pts, rr, lo, h, dims, start, order):  # pragma: no cover
-    """Some row of the bucket grid (:func:`_grid3`) lies within ``sqrt(rr) <= h`` of x:
-    squared distance (x, y, z in that order) <= ``rr``."""
-    g0 = int(math.floor((x0 - lo[0]) / h))
-    g1 = int(math.floor((x1 - lo[1]) / h))
-    g2 = int(math.floor((x2 - lo[2]) / h))
-    for a in range(max(g0 - 1, 0), min(g0 + 1, dims[0] - 1) + 1):
-        for b in range(max(g1 - 1, 0), min(g1 + 1, dims[1] - 1) + 1):
-            for c in range(max(g2 - 1, 0), min(g2 + 1, dims[2] - 1) + 1):
-                cell = (a * dims[1] + b) * dims[2] + c
-                for s in range(start[cell], start[cell + 1]):
-                    i = order[s]
-                    f0 = x0 - pts[i, 0]
-                    f1 = x1 - pts[i, 1]
-                    f2 = x2 - pts[i, 2]
-                    if f0 * f0 + f1 * f1 + f2 * f2 <= rr:
-                        return True
-    return False
+    ext0 = hi[0] - lo[0]
+    ext1 = hi[1] - lo[1]
+    h = max(h, math.sqrt(ext0 * ext1 / cells), max(ext0, ext1) / cells)
+    nx = int(ext0 / h) + 1
+    ny = int(ext1 / h) + 1
+    start, order = _plane_grid(xy, lo, h, nx, ny)
+    return lo, h, nx, ny, start, order
 
 
 @nb.njit(cache=True)
@@ -173,6 +104,7 @@ def consistency_counts(
     q,  # (n, 3) those points in the model frame
     dist,  # (n,) distance of each to its nearest sample (the lookup's or the tree's)
     idx,  # (n,) that sample
+    seen_near,  # (n,) a seen sample lies within d (asked where the nearest is not seen)
     has_table,
     tn,  # (3,) table normal (towards the objects)
     toff,  # table offset
@@ -199,31 +131,12 @@ def consistency_counts(
     loose = np.empty(nn, np.int64)  # cloud rows not explained: loose unless on the table
     n_loose = 0
     zq_min = np.inf
-    dd = d * d
-    # the seen samples in a bucket grid of cells >= d, for the points whose nearest sample
-    # is not seen (built at the first such point)
-    g_lo = np.zeros(3)
-    g_h = 0.0
-    g_dims = np.zeros(3, np.int64)
-    g_start = np.zeros(1, np.int64)
-    g_order = np.zeros(0, np.int64)
-    built = False
     for k in range(nn):
         j = near[k]
         i0 = idx[k]
         close = dist[k] <= d
-        explained = close and seen[i0]
-        if close and not explained:
-            # a point whose nearest sample faces away may still have a seen one within d
-            if not built:
-                seen_rows = np.flatnonzero(seen)
-                if seen_rows.shape[0]:  # (none seen: no point is explained)
-                    g_lo, g_h, g_dims, g_start, g_order = _grid3(S, seen_rows, d * (1.0 + 1e-9))
-                built = True
-            if g_order.shape[0]:
-                explained = _any_within(
-                    q[k, 0], q[k, 1], q[k, 2], S, dd, g_lo, g_h, g_dims, g_start, g_order
-                )
+        # a point whose nearest sample faces away may still have a seen one within d
+        explained = close and (seen[i0] or seen_near[k])
         if explained:
             explained_n += 1
             continue
@@ -262,7 +175,7 @@ def consistency_counts(
                     m += 1
             r_pair = 0.5 * d
             r_probe = 2.0 * reach
-            lo0, lo1, h, gx, gy, start, order = _grid2(xy, max(r_pair, r_probe) * (1.0 + 1e-9))
+            lo, h, gx, gy, start, order = _grid2(xy, max(r_pair, r_probe) * (1.0 + 1e-9))
             rr_pair = r_pair * r_pair
             rr_probe = r_probe * r_probe
             rr_reach = reach * reach
@@ -273,8 +186,8 @@ def consistency_counts(
                 zq = cloud[j, 2]
                 above = 0
                 low = np.inf
-                ix = int(math.floor((x - lo0) / h))
-                iy = int(math.floor((y - lo1) / h))
+                ix = int(math.floor((x - lo[0]) / h))
+                iy = int(math.floor((y - lo[1]) / h))
                 for a in range(max(ix - 1, 0), min(ix + 1, gx - 1) + 1):
                     for b in range(max(iy - 1, 0), min(iy + 1, gy - 1) + 1):
                         c = a * gy + b
@@ -303,8 +216,8 @@ def consistency_counts(
                     py = y + gap * dirs8[v, 1]
                     z_min = np.inf
                     nearer = False
-                    ix = int(math.floor((px - lo0) / h))
-                    iy = int(math.floor((py - lo1) / h))
+                    ix = int(math.floor((px - lo[0]) / h))
+                    iy = int(math.floor((py - lo[1]) / h))
                     for a in range(max(ix - 1, 0), min(ix + 1, gx - 1) + 1):
                         for b in range(max(iy - 1, 0), min(iy + 1, gy - 1) + 1):
                             c = a * gy + b

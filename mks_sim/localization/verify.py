@@ -291,6 +291,15 @@ class Consistency:
         through or under it): the ranking key among consistent poses."""
         return self.explained - UNEXPLAINED_WEIGHT * (self.unexplained + self.inside + self.below)
 
+    @classmethod
+    def of(
+        cls, explained: int, inside: int, below: int, penetration: float, unexplained: int
+    ) -> Consistency:
+        """The check of these counts, with its verdict (``ok``, see the attributes)."""
+        bad = inside + below
+        ok = bool(explained >= 30 and bad <= 0.05 * max(explained, 1) and penetration <= 0.02)
+        return cls(int(explained), int(inside), int(below), float(penetration), ok, int(unexplained))
+
     def __getitem__(self, key: str) -> Any:
         """Dictionary-style access (``check["ok"]``) for reports."""
         return getattr(self, key)
@@ -562,9 +571,7 @@ def consistency(
         if elsewhere is not None:
             loose &= ~elsewhere[near_idx]
         unexplained_n = int(loose.sum())
-    bad = inside_n + below_n
-    ok = bool(explained_n >= 30 and bad <= 0.05 * max(explained_n, 1) and penetration <= 0.02)
-    return Consistency(explained_n, inside_n, below_n, penetration, ok, unexplained_n)
+    return Consistency.of(explained_n, inside_n, below_n, penetration, unexplained_n)
 
 
 def _consistency_compiled(
@@ -599,18 +606,20 @@ def _consistency_compiled(
     near = _gridknn.ball_rows(cloud, centre, radius + 2 * d)
     q = (cloud[near] - t) @ R
     dist, idx = surface.nearest(q, np.inf)
+    # a point whose nearest sample faces away may still have a seen one within d (the
+    # tree's rule: strictly within the next float up)
+    seen_near = np.zeros(len(near), dtype=bool)
+    amb = np.flatnonzero((dist <= d) & ~seen[idx])
+    if len(amb) and seen.any():
+        seen_near[amb] = _gridknn.space_any(S[seen], q[amb], float(np.nextafter(d, np.inf)))
     explained_n, inside_n, below_n, unexplained_n = consistency_counts(
         P, seen, S, Nm, cloud, near.astype(np.int64), np.ascontiguousarray(q),
-        np.ascontiguousarray(dist), idx.astype(np.int64), table is not None, tn, toff,
-        bool(table is not None and lowest <= d), float(d),
+        np.ascontiguousarray(dist), idx.astype(np.int64), seen_near, table is not None, tn,
+        toff, bool(table is not None and lowest <= d), float(d),
         np.zeros(0, dtype=bool) if elsewhere is None else np.ascontiguousarray(elsewhere, bool),
         float(max(0.5 * d, _model_spacing(surface_pts))), _DIRS8,
     )  # fmt: skip
-    bad = inside_n + below_n
-    ok = bool(explained_n >= 30 and bad <= 0.05 * max(explained_n, 1) and penetration <= 0.02)
-    return Consistency(
-        int(explained_n), int(inside_n), int(below_n), float(penetration), ok, int(unexplained_n)
-    )
+    return Consistency.of(explained_n, inside_n, below_n, penetration, unexplained_n)
 
 
 def rank(
