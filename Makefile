@@ -18,6 +18,7 @@ $(VENV)/.installed-test: $(VENV)/.installed
 	touch $@
 
 demo: $(VENV)/.installed
+	$(PY) -m mks_sim.kernels
 	$(VENV)/bin/mks-sim demo
 
 test: $(VENV)/.installed-test
@@ -25,6 +26,9 @@ test: $(VENV)/.installed-test
 	# bunched on one worker: 10.9 min with the default scheduling, 8.4 with worksteal)
 	$(PY) -m ruff check mks_sim tests benchmarks
 	$(PY) -m mypy
+	# the numba kernels compiled once, shared out over both cores, before the test workers
+	# (and the processes they start) would each compile them (mks_sim/kernels.py)
+	$(PY) -m mks_sim.kernels --jobs 2
 	$(PY) -m pytest -n 2 --dist worksteal -q --durations=15
 
 bench: $(VENV)/.installed-test

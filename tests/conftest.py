@@ -6,6 +6,16 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # One thread a worker, as the episode pool's workers (mks_sim.tasks.backends): two workers
+    # on two cores, each with two BLAS and two numba threads, spent time waiting for each
+    # other's (a suite of 630 s: 616 s with one). A test of threads sets its own.
+    for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_var, "1")
+    import numba  # noqa: E402
+
+    numba.set_num_threads(1)
+
 from hypothesis import HealthCheck, settings  # noqa: E402
 
 # Property tests must be deterministic in CI: the same examples every run.
@@ -17,3 +27,13 @@ settings.register_profile(
     suppress_health_check=[HealthCheck.too_slow],
 )
 settings.load_profile("mks")
+
+
+def pytest_sessionfinish(session) -> None:
+    """``MKS_KERNEL_SIGNATURES=<file>``: add the kernel signatures this process used to the
+    file (``mks_sim.kernels.record``; the list ``make test`` compiles ahead)."""
+    path = os.environ.get("MKS_KERNEL_SIGNATURES")
+    if path:
+        from mks_sim import kernels
+
+        kernels.record(path)

@@ -29,48 +29,54 @@ def _brute(T, pts, nrm, cloud, table, d, viewpoints=()):  # noqa: ANN001, ANN202
     explained = inside = below = 0
     # the model's sample spacing (median nearest-neighbour distance), by brute force
     sub = pts[:: max(1, len(pts) // 500)]
-    nn = np.sort(np.linalg.norm(sub[:, None, :] - pts[None, :, :], axis=2), axis=1)[:, 1]
+    nn = np.partition(np.linalg.norm(sub[:, None, :] - pts[None, :, :], axis=2), 1, axis=1)[:, 1]
     reach = max(0.5 * d, float(np.median(nn)))
+    # every near point against every sample (in blocks of rows): the nearest seen sample's
+    # distance, the nearest sample and its distance
+    seen_min, nearest, nearest_d = [], [], []
+    for rows in np.array_split(near, max(1, len(near) // 256)):
+        dd = np.linalg.norm(rows[:, None, :] - P[None, :, :], axis=2)
+        seen_min.append(dd[:, seen].min(axis=1, initial=np.inf))
+        nearest.append(np.argmin(dd, axis=1))
+        nearest_d.append(dd.min(axis=1))
+    seen_min, nearest, nearest_d = map(np.concatenate, (seen_min, nearest, nearest_d))
     rest_z = []
-    for q in near:
-        dd = np.linalg.norm(P - q, axis=1)
-        j = int(np.argmin(dd))
-        if not (np.min(dd[seen]) <= d or dd[j] <= d or (q - P[j]) @ N[j] < -d):
+    for q, sd, j, dj in zip(near, seen_min, nearest, nearest_d, strict=True):
+        if not (sd <= d or dj <= d or (q - P[j]) @ N[j] < -d):
             rest_z.append(q[2])
     cloud_zmin = min(rest_z) if rest_z else 0.0
     loose = 0  # neither explained nor impossible, off the table by more than d
-    for q in near:
-        off_table = table.distance(q[None])[0] > d
-        dd = np.linalg.norm(P - q, axis=1)
-        if np.min(dd[seen]) <= d:
+    off = table.distance(near) > d
+    resting = np.min(table.distance(P)) <= d
+    high = P[P[:, 2] > cloud_zmin - d]
+    for q, sd, j, dj, off_table in zip(near, seen_min, nearest, nearest_d, off, strict=True):
+        if sd <= d:
             explained += 1
             continue
-        j = int(np.argmin(dd))
-        if dd[j] > d and (q - P[j]) @ N[j] < -d:
+        if dj > d and (q - P[j]) @ N[j] < -d:
             inside += 1
             continue
-        if dd[j] <= d:  # on the surface (turned from the sensors): not seen through it
+        if dj <= d:  # on the surface (turned from the sensors): not seen through it
             loose += off_table
             continue
-        col = np.linalg.norm(P[:, :2] - q[:2], axis=1) <= 0.5 * d
+        ex, ey = P[:, 0] - q[0], P[:, 1] - q[1]
+        col = np.sqrt(ex * ex + ey * ey) <= 0.5 * d
         if np.count_nonzero(col & (P[:, 2] > q[2] + 2 * d)) < 2:
             loose += off_table
             continue
         # seen by an oblique (45 deg) sensor when, within the height of the lowest model
         # surface over it, some horizontal direction leaves the footprint of the model above
         # or the model there does not reach down to that line of sight
-        if np.min(table.distance(P)) > d:  # not resting on the table: no overhang to see under
+        if not resting:  # not resting on the table: no overhang to see under
             below += 1
             continue
         gap = max(P[col & (P[:, 2] > q[2] - d), 2].min() - q[2], 0.0)
-        high = P[P[:, 2] > cloud_zmin - d]
-        covered = True
-        for a in np.arange(8) * np.pi / 4:
-            probe = q[:2] + gap * np.array([np.cos(a), np.sin(a)])
-            r = np.linalg.norm(high[:, :2] - probe, axis=1)
-            low_there = high[r <= 2 * reach, 2].min(initial=np.inf)
-            covered &= bool((r <= reach).any() and low_there <= q[2] + 1.2 * gap + 0.1 * d)
-        if covered:
+        a = np.arange(8) * np.pi / 4  # eight directions, each probed on its own (a row)
+        probes = q[:2] + gap * np.stack([np.cos(a), np.sin(a)], axis=1)
+        dx, dy = high[:, 0] - probes[:, :1], high[:, 1] - probes[:, 1:]
+        r = np.sqrt(dx * dx + dy * dy)
+        low_there = np.where(r <= 2 * reach, high[:, 2], np.inf).min(axis=1)
+        if np.all((r <= reach).any(axis=1) & (low_there <= q[2] + 1.2 * gap + 0.1 * d)):
             below += 1
         else:
             loose += off_table
