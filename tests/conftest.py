@@ -37,3 +37,4 @@ def pytest_sessionfinish(session) -> None:
         from mks_sim import kernels
 
         kernels.record(path)
+

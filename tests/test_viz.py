@@ -362,8 +362,15 @@ def test_connect_to_no_viewer_fails_fast_before_work(
     import socket
 
     import mks_sim.viz.rerun_recorder as rerun_recorder
+    from mks_sim.viz.viewer import listening
 
-    monkeypatch.setattr(rerun_recorder, "VIEWER_WAIT_S", 0.3)
+    def no_stream(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a recording stream was opened to a viewer that is not there")
+
+    monkeypatch.setattr(rerun_recorder, "CONNECT_WAIT_S", 0.3)
+    # checked before any stream: a gRPC sink to nobody blocks 5 s connecting and 5 s on
+    # disconnect, and logs errors past the one-line message
+    monkeypatch.setattr(rerun_recorder.rr, "RecordingStream", no_stream)
     with socket.socket() as s:  # a port nothing listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -372,6 +379,7 @@ def test_connect_to_no_viewer_fails_fast_before_work(
     assert rc == 2 and captured.out == ""  # nothing localized
     (line,) = captured.err.strip().splitlines()
     assert "--rerun connect: no Rerun viewer listens there" in line and "save:PATH.rrd" in line
+    assert not listening("rerun+http://127.0.0.1:99999/proxy", 0.0)  # no such port
 
 
 @needs_rerun

@@ -59,9 +59,20 @@ CLOUD_PERIOD_S = 1.0
 _SELF_HIT_RAY_M = 0.1
 SPAWN_PORT = 9876  # Rerun's default viewer port
 VIEWER_WAIT_S = 8.0  # a spawned viewer binds its port within ~1-3 s
+CONNECT_WAIT_S = 1.0  # a viewer connected to is running already
 VIEWER_FLUSH_S = 30.0
 _LEVELS = {"INFO": rr.TextLogLevel.INFO, "WARN": rr.TextLogLevel.WARN,
            "ERROR": rr.TextLogLevel.ERROR}  # fmt: skip
+
+
+def _no_viewer(spec: RerunSpec, url: str) -> str:
+    """The one-line error for a viewer that is not there (spawned or connected to)."""
+    why = "the viewer did not start (no display?)" if spec.mode == "spawn" else (
+        "no Rerun viewer listens there")  # fmt: skip
+    return (
+        f"--rerun {spec.mode}: {why} at {url}; record to a file instead with "
+        "--rerun save:PATH.rrd and open it with `rerun PATH.rrd`"
+    )
 
 
 class RerunRecorder:
@@ -76,6 +87,10 @@ class RerunRecorder:
 
     def __init__(self, spec: RerunSpec, application_id: str = "mks_sim") -> None:
         self.spec = spec
+        if spec.mode == "connect" and not listening(str(spec.target), CONNECT_WAIT_S):
+            # before the stream connects: a gRPC sink to nobody blocked 5 s connecting and
+            # 5 s more on disconnect, and logged its errors on the way out
+            raise MksError(_no_viewer(spec, str(spec.target)))
         self.rec = rr.RecordingStream(application_id)
         try:
             if spec.mode == "save":
@@ -90,16 +105,11 @@ class RerunRecorder:
             raise MksError(f"--rerun {spec.mode}: cannot open the recording: {msg}") from exc
         # A viewer that is not there would make the run hang at the end, flushing to nobody:
         # fail now, before any work.
-        if spec.mode != "save":
-            url = f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy" if spec.mode == "spawn" else spec.target
-            if not listening(str(url), VIEWER_WAIT_S):
+        if spec.mode == "spawn":
+            url = f"rerun+http://127.0.0.1:{SPAWN_PORT}/proxy"
+            if not listening(url, VIEWER_WAIT_S):
                 self.rec.disconnect()
-                why = "the viewer did not start (no display?)" if spec.mode == "spawn" else (
-                    "no Rerun viewer listens there")  # fmt: skip
-                raise MksError(
-                    f"--rerun {spec.mode}: {why} at {url}; record to a file instead with "
-                    "--rerun save:PATH.rrd and open it with `rerun PATH.rrd`"
-                )
+                raise MksError(_no_viewer(spec, url))
         self._snapshots: list[Any] = []
         self._robot: list[Any] = []
         self._robot_joints: list[str] = []

@@ -17,7 +17,10 @@ def listening(url: str, wait_s: float) -> bool:
     """True when something accepts TCP connections at the URL's host and port within
     ``wait_s`` seconds."""
     parts = urlsplit(url)
-    host, port = parts.hostname or "127.0.0.1", parts.port or 9876
+    try:
+        host, port = parts.hostname or "127.0.0.1", parts.port or 9876
+    except ValueError:  # a port out of range: nothing listens there
+        return False
     deadline = time.monotonic() + wait_s
     while True:
         try:
