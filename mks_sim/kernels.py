@@ -28,6 +28,7 @@ import sys
 import time
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -96,18 +97,17 @@ def listed(path: str | Path = SIGNATURE_FILE) -> dict[str, list[str]]:
     return out
 
 
-def _compile_one(name: str, sigs: list[str]) -> tuple[str, int, int, float]:
+def _compile_one(name: str, sigs: list[str]) -> tuple[str, int, int]:
     """Compile (or load from the cache) kernel ``name``'s signatures: (name, compiled or
-    loaded, skipped, seconds). A signature that no longer fits the kernel (it changed since
+    loaded, skipped). A signature that no longer fits the kernel (it changed since
     the list was written) or names a type numba does not know is skipped."""
     from numba.core import types
 
-    t0 = time.perf_counter()
     modname, _, fname = name.rpartition(".")
     try:
         disp = getattr(importlib.import_module(modname), fname)
     except (ImportError, AttributeError):
-        return name, 0, len(sigs), 0.0
+        return name, 0, len(sigs)
     done = skipped = 0
     for text in sigs:
         try:
@@ -116,7 +116,7 @@ def _compile_one(name: str, sigs: list[str]) -> tuple[str, int, int, float]:
             done += 1
         except Exception:  # noqa: BLE001 - a stale line: the kernel compiles on use instead
             skipped += 1
-    return name, done, skipped, time.perf_counter() - t0
+    return name, done, skipped
 
 
 def _source_size(name: str) -> int:
@@ -142,13 +142,23 @@ def compile_ahead(jobs: int = 2, path: str | Path = SIGNATURE_FILE, quiet: bool 
     todo = listed(path)
     if not todo or not _gridknn.available():
         return 0
+    from tqdm import tqdm
+
     names = sorted(todo, key=lambda n: -_source_size(n))
     t0 = time.perf_counter()
     total = skipped = 0
-    with ProcessPoolExecutor(max_workers=max(1, jobs), mp_context=get_context("spawn")) as pool:
-        for _name, done, skip, _s in pool.map(_compile_one, names, [todo[n] for n in names]):
-            total += done
-            skipped += skip
+    bar = tqdm(total=len(names), desc="kernels", unit="kernel", file=sys.stderr, disable=quiet)
+    try:
+        with ProcessPoolExecutor(max_workers=max(1, jobs), mp_context=get_context("spawn")) as pool:
+            for _name, done, skip in pool.map(_compile_one, names, [todo[n] for n in names]):
+                total += done
+                skipped += skip
+                bar.update()
+    except (OSError, BrokenProcessPool) as exc:  # compiling ahead only moves work earlier
+        print(f"kernels: compiling ahead stopped ({exc}); the rest compile on first use",
+              file=sys.stderr)  # fmt: skip
+    finally:
+        bar.close()
     if not quiet:
         stale = f", {skipped} stale skipped" if skipped else ""
         print(

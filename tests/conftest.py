@@ -8,8 +8,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
     # One thread a worker, as the episode pool's workers (mks_sim.tasks.backends): two workers
-    # on two cores, each with two BLAS and two numba threads, spent time waiting for each
-    # other's (a suite of 630 s: 616 s with one). A test of threads sets its own.
+    # on two cores, each with two BLAS and two numba threads, oversubscribe them (one pair of
+    # runs: 630 s, 616 s with one -- within the runs' spread). A test of threads sets its own.
     for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(_var, "1")
     import numba  # noqa: E402
@@ -37,4 +37,3 @@ def pytest_sessionfinish(session) -> None:
         from mks_sim import kernels
 
         kernels.record(path)
-
