@@ -119,18 +119,20 @@ def _compile_one(name: str, sigs: list[str]) -> tuple[str, int, int]:
     return name, done, skipped
 
 
-def _source_size(name: str) -> int:
-    """A kernel's source lines in its module (its compile cost, roughly): for the order."""
+def _source_sizes(modnames: set[str]) -> dict[str, int]:
+    """``{module.function: source lines}`` of the functions of these modules (a kernel's
+    compile cost, roughly: for the order), each module's source parsed once."""
     import ast
 
-    modname, _, fname = name.rpartition(".")
-    spec = importlib.util.find_spec(modname)
-    if spec is None or spec.origin is None:
-        return 0
-    for node in ast.parse(Path(spec.origin).read_text()).body:
-        if isinstance(node, ast.FunctionDef) and node.name == fname:
-            return (node.end_lineno or node.lineno) - node.lineno
-    return 0
+    out = {}
+    for modname in modnames:
+        spec = importlib.util.find_spec(modname)
+        if spec is None or spec.origin is None:
+            continue
+        for node in ast.parse(Path(spec.origin).read_text()).body:
+            if isinstance(node, ast.FunctionDef):
+                out[f"{modname}.{node.name}"] = (node.end_lineno or node.lineno) - node.lineno
+    return out
 
 
 def compile_ahead(jobs: int = 2, path: str | Path = SIGNATURE_FILE, quiet: bool = False) -> int:
@@ -144,7 +146,8 @@ def compile_ahead(jobs: int = 2, path: str | Path = SIGNATURE_FILE, quiet: bool 
         return 0
     from tqdm import tqdm
 
-    names = sorted(todo, key=lambda n: -_source_size(n))
+    size = _source_sizes({name.rpartition(".")[0] for name in todo})
+    names = sorted(todo, key=lambda n: -size.get(n, 0))
     t0 = time.perf_counter()
     total = skipped = 0
     bar = tqdm(total=len(names), desc="kernels", unit="kernel", file=sys.stderr, disable=quiet)

@@ -41,6 +41,17 @@ def test_every_listed_signature_names_a_kernel_and_fits_its_parameters() -> None
             assert len(sig) == n_params, (name, text)
 
 
+def test_every_kernel_module_of_the_package_is_listed() -> None:
+    """A kernel module added later (``_*kernels.py``) belongs in ``KERNEL_MODULES``: its
+    signatures would otherwise never be recorded nor compiled ahead."""
+    root = Path(kernels.__file__).parent
+    found = {
+        ".".join(("mks_sim", *p.relative_to(root).with_suffix("").parts))
+        for p in root.rglob("_*kernels.py")
+    }
+    assert found == set(kernels.KERNEL_MODULES)
+
+
 @needs_numba
 def test_used_and_record_merge_the_signatures_of_several_processes(tmp_path: Path) -> None:
     """A kernel called here is in :func:`used`; two records into one file keep both
