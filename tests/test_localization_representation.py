@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -167,8 +169,9 @@ def test_a_segment_and_its_component_intersect_their_faces_once(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """The Vertex_Detector's component and the object segment holding the same points (the
-    cube) share one plane-vertex intersection; the vertexes are the cube's 8 corners (top
-    ones from three faces, bottom ones with the table)."""
+    cube) share one plane-vertex intersection, and a segment intersects its faces only when
+    its vertexes are asked for; the vertexes are the cube's 8 corners (top ones from three
+    faces, bottom ones with the table)."""
     import mks_sim.lowlevel.vertexes as vertexes_mod
     from mks_sim.localization.pipeline import object_segments
 
@@ -182,13 +185,14 @@ def test_a_segment_and_its_component_intersect_their_faces_once(
     monkeypatch.setattr(vertexes_mod, "plane_vertexes", count)
     rep = Representation(_scene(), RepresentationConfig(table_z_m=TABLE_Z, gap_m=0.012))
     segments = object_segments(rep, 0.0866)
-    n_segment_calls = len(calls)
+    assert calls == []  # none until asked for
     cube_seg = min(segments, key=lambda s: abs(s.points[:, 0].mean() - 0.05))
     comp = next(c for c in rep.components(30) if set(rep.objects[c, 0].round(9)) ==
                 set(cube_seg.points[:, 0].round(9)))  # fmt: skip
     verts, planes = rep.vertexes_of(comp)
-    assert len(calls) == n_segment_calls  # no second intersection
+    assert len(calls) == 1
     assert verts is cube_seg.vertexes and tuple(planes) == cube_seg.planes
+    n_segment_calls = len(calls)  # no second intersection
     corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * 0.025
     corners += [0.05, -0.03, TABLE_Z + 0.025]
     d = np.linalg.norm(verts.points[:, None] - corners[None], axis=2).min(axis=0)
@@ -267,6 +271,35 @@ def test_segments_are_verified_most_promising_first_and_stop_when_settled() -> N
     assert np.max(np.min(np.linalg.norm(A[:, None] - B[None], axis=2), axis=1)) < 0.002
     _, seg_of_all = polyhedral_candidates(model, rep, segments, rng=np.random.default_rng(0))
     assert box_seg in seg_of_all
+
+
+def test_lazy_plans_come_in_the_order_of_all_plans_sorted() -> None:
+    """The segments' plans come in the order every plan computed and sorted by promise
+    (ties in segment order, fragments left out) gives, and a full promise (1.0) is verified
+    before the segments after it are planned: against that brute force on random promises
+    with many ties."""
+    from mks_sim.localization.pipeline import _LazyPlans
+
+    rng = np.random.default_rng(11)
+    for _ in range(300):
+        n = int(rng.integers(0, 8))
+        promise = rng.choice([0.0, 0.5, 0.9, 1.0, -1.0], size=n)  # -1: a fragment (no plan)
+        planned: list[int] = []
+
+        def plan(si: int, promise: np.ndarray = promise, planned: list[int] = planned) -> Any:
+            planned.append(si)
+            return None if promise[si] < 0 else (float(promise[si]), si, [], 0.0)
+
+        want = sorted((si for si in range(n) if promise[si] >= 0), key=lambda si: -promise[si])
+        plans = _LazyPlans(n, plan)
+        got = []
+        while (p := plans.next()) is not None:
+            if not got:  # the first: planned up to the first full promise, no further
+                full = [si for si in range(n) if promise[si] == 1.0]
+                assert planned == list(range(full[0] + 1 if full else n))
+            got.append(p[1])
+        assert got == want
+        assert planned == list(range(n))  # each segment planned once
 
 
 def test_description_sensors_ask_for_the_flows_one_representation() -> None:

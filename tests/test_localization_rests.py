@@ -118,7 +118,7 @@ def test_support_faces_only_for_what_can_rest_on_the_table() -> None:
     seen = _seen_from_above(model, T, rng)
 
     def segment(points: np.ndarray) -> Segment:
-        return Segment(np.arange(len(points)), points, (), None, False)
+        return Segment(np.arange(len(points)), points, (), False)
 
     resting = support_face_hypotheses(model, [segment(seen)], table, 0.002, 0.002, rng, {})
     assert resting
@@ -236,7 +236,7 @@ def test_support_faces_find_a_cube_whose_top_is_partly_hidden(cut: float, yaw: f
     seen = P[top | side] + rng.normal(0.0, 0.0003, (int(np.sum(top | side)), 3))
     seen = seen[seen[:, 2] > 0.753]
     assert np.linalg.norm(seen[:, :2].mean(axis=0) - T[:2, 3]) > 0.02
-    segment = Segment(np.arange(len(seen)), seen, (), None, True)
+    segment = Segment(np.arange(len(seen)), seen, (), True)
     hyps = support_face_hypotheses(cube, [segment], table, 0.002, 0.002, rng, {})
     assert hyps
     # modulo the cube's symmetry: the posed corners compared as sets

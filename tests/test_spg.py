@@ -384,3 +384,81 @@ def test_weak_components_without_numba(monkeypatch):
     np.testing.assert_array_equal(labels, [0, 0, 1, 2, 2, 2])
     with pytest.raises(DataError, match="square"):
         gk.weak_components(sparse.csr_array((2, 3)))
+
+
+def _random_graph(rng: np.random.Generator) -> tuple[int, sparse.csr_array]:
+    n = int(rng.integers(1, 150))
+    e = int(rng.integers(0, 3 * n))
+    data = rng.random(e) * (rng.random(e) > 0.3)  # some explicit zeros
+    graph = sparse.csr_array((data, (rng.integers(0, n, e), rng.integers(0, n, e))), shape=(n, n))
+    return n, graph
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("seed", range(4))
+def test_masked_components_against_flood_fill(seed, compiled, monkeypatch):
+    """The components of the kept nodes over the entries <= limit between two of them: a
+    flood fill's over those entries both ways, numbered by each component's first node,
+    -1 off the mask; compiled and through scipy."""
+    import mks_sim.lowlevel._gridknn as gk
+
+    if not compiled:
+        monkeypatch.setattr(gk, "available", lambda: False)
+    rng = np.random.default_rng(100 + seed)
+    for _ in range(20):
+        n, graph = _random_graph(rng)
+        keep = rng.random(n) > 0.3
+        limit = float(rng.choice([np.inf, 0.5, 0.0]))
+        coo = graph.tocoo()
+        nbrs: list[set[int]] = [set() for _ in range(n)]
+        for a, b, v in zip(coo.row.tolist(), coo.col.tolist(), coo.data.tolist(), strict=True):
+            if keep[a] and keep[b] and v <= limit:
+                nbrs[a].add(b)
+                nbrs[b].add(a)
+        expect = np.full(n, -1)
+        count = 0
+        for s in np.flatnonzero(keep).tolist():
+            if expect[s] >= 0:
+                continue
+            expect[s] = count
+            stack = [s]
+            while stack:
+                for b in nbrs[stack.pop()]:
+                    if expect[b] < 0:
+                        expect[b] = count
+                        stack.append(b)
+            count += 1
+        got_count, got = gk.masked_components(graph, keep, limit)
+        assert got_count == count
+        np.testing.assert_array_equal(got, expect)
+    # all nodes, no limit: weak_components
+    n, graph = _random_graph(rng)
+    count, labels = gk.masked_components(graph)
+    ref_count, ref = gk.weak_components(graph)
+    assert count == ref_count
+    np.testing.assert_array_equal(labels, ref)
+    with pytest.raises(DataError, match="square"):
+        gk.masked_components(sparse.csr_array((2, 3)))
+    with pytest.raises(DataError, match=r"\(2,\) keep"):
+        gk.masked_components(sparse.csr_array((2, 2)), np.ones(3, bool))
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_same_label_entries_against_brute_force(compiled, monkeypatch):
+    """``same_label_entries`` keeps exactly the entries joining two nodes of one label, with
+    their values, each row in its order."""
+    import mks_sim.lowlevel._gridknn as gk
+
+    if not compiled:
+        monkeypatch.setattr(gk, "available", lambda: False)
+    rng = np.random.default_rng(7)
+    for _ in range(30):
+        n, graph = _random_graph(rng)
+        labels = rng.integers(0, 3, n)
+        kept = gk.same_label_entries(graph, labels)
+        coo = graph.tocoo()
+        same = labels[coo.row] == labels[coo.col]
+        want = sparse.csr_array((coo.data[same], (coo.row[same], coo.col[same])), shape=(n, n))
+        np.testing.assert_array_equal(kept.indptr, want.indptr)
+        np.testing.assert_array_equal(kept.indices, want.indices)
+        np.testing.assert_array_equal(kept.data, want.data)

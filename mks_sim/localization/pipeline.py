@@ -21,7 +21,7 @@ import itertools
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -53,6 +53,7 @@ from mks_sim.localization.verify import Consistency, NearPoints, consistency, fi
 from mks_sim.lowlevel._gridknn import (
     column_bounds,
     column_mean,
+    masked_components,
     norm_within,
     row_norms,
     weak_components,
@@ -182,15 +183,23 @@ class Segment:
         indices: (n,) indices into ``rep.objects``.
         points: (n, 3) its points.
         planes: its planar regions (indices into ``rep.objects``).
-        vertexes: its vertexes (``Vertexes``).
         on_table: the table was used as a face.
+        rep: the representation it is a segment of (None: a segment without vertexes).
     """
 
     indices: IntArray
     points: FloatArray
     planes: tuple[Any, ...]
-    vertexes: Any
     on_table: bool
+    rep: Representation | None = field(default=None, repr=False)
+
+    @functools.cached_property
+    def vertexes(self) -> Any:
+        """Its vertexes (``Vertexes``; None without a representation), its planes intersected
+        on first use: the segments after the one that settles the answer never need them."""
+        if self.rep is None:
+            return None
+        return self.rep.plane_vertexes(self.planes, self.on_table)
 
 
 def object_segments(
@@ -223,17 +232,8 @@ def object_segments(
         return []
     # Components of the kept points over short SPG edges (4 spacings): a sphere set aside
     # no longer bridges the cube it rests on to its other neighbours.
-    adj = rep.spg_adjacency.tocoo()
     gap = min(rep.gap, 4.0 * rep.spacing) if gap is None else gap
-    link = mask[adj.row] & mask[adj.col] & (adj.data <= gap)
-    pos = np.full(len(objects), -1, dtype=np.intp)
-    pos[idx] = np.arange(len(idx))
-    joined = sparse.csr_array(
-        (np.ones(int(link.sum())), (pos[adj.row[link]], pos[adj.col[link]])),
-        shape=(len(idx), len(idx)),
-    )
-    _, comp = weak_components(joined)
-    merged = np.asarray(comp, dtype=np.intp)
+    merged = masked_components(rep.spg_adjacency, mask, gap)[1][idx]
     if merge:
         merged = _merge_components(objects[idx], merged, model_size)
     sizes = np.bincount(merged)
@@ -252,9 +252,7 @@ def object_segments(
         members = idx[merged == c]
         seg_pts = objects[members]
         planes = [r for r, f in zip(regions, share, strict=True) if f[c] >= 0.5]
-        on_table = rep.touches_table(seg_pts)
-        verts = rep.plane_vertexes(planes, on_table)
-        out.append(Segment(members, seg_pts, tuple(planes), verts, on_table))
+        out.append(Segment(members, seg_pts, tuple(planes), rep.touches_table(seg_pts), rep))
     return out
 
 
@@ -293,24 +291,36 @@ def polyhedral_candidates(
     model_area = len(surface.points) * (surface.spacing / 0.47) ** 2
 
     t_hyp = t_ver = 0.0
-    # 5. every segment's vertex hypotheses and how well the best of them explains it
-    t = time.perf_counter()
-    plans: list[tuple[float, int, list[PoseHypothesis], float]] = []
-    for si, seg in enumerate(segments):
+    # the pre-scores' own draws: what is verified does not depend on how many were computed
+    promise_rng = np.random.default_rng(rng.integers(2**63))
+
+    def plan(si: int) -> Plan | None:
+        """Segment ``si``'s vertex hypotheses and how well the best of them explains it."""
+        seg = segments[si]
         if len(seg.points) * spacing**2 < 0.25 * VISIBLE_FRACTION * model_area:
-            continue  # shows under 5 % of the model's area: a fragment, not the object
+            return None  # shows under 5 % of the model's area: a fragment, not the object
         noise = float(np.median([p.plane.rmse for p in seg.planes])) if seg.planes else 0.0
         inlier = max(1.0 * spacing, rep.voxel, 3.0 * noise)
         hyps = vertex_hypotheses(
             model, seg.vertexes, seg.points, vote_distance=4 * spacing, rotinv=rotinv,
             compiled=WORKSTATION_COMPILED,
         )  # fmt: skip
-        plans.append((_promise(surface, seg.points, hyps, inlier, rng), si, hyps, inlier))
-    plans.sort(key=lambda p: -p[0])
-    t_hyp += time.perf_counter() - t
+        return (_promise(surface, seg.points, hyps, inlier, promise_rng), si, hyps, inlier)
 
+    # 5. the segments' plans, verified in the order of their promise (ties in segment order),
+    # computed lazily: a plan whose promise is full (every point explained) goes before any
+    # plan of a later segment, so the segments after it are planned only when it does not
+    # settle the answer (the healthy cube's own segment was full in 17 of tuning seeds
+    # 1000-1019, at a random place among four; the rest cost 1-3 ms each)
+    plans = _LazyPlans(len(segments), plan)
     results: list[tuple[PoseHypothesis, int]] = []
-    for k, (_, si, hyps, inlier) in enumerate(plans):
+    while True:
+        t = time.perf_counter()
+        nxt = plans.next()
+        t_hyp += time.perf_counter() - t
+        if nxt is None:
+            break
+        _, si, hyps, inlier = nxt
         seg = segments[si]
         pairs_of = functools.partial(_plane_pairs, seg, rep.objects, rep.table)
         scored, dt_h, dt_v = _segment_verified(
@@ -332,7 +342,7 @@ def polyhedral_candidates(
         t_ver += dt_v
         results.extend((h, si) for h, _ in scored)
         results.sort(key=lambda r: (-r[0].score, r[0].rmse))
-        if results and _unranked_rest(plans, k, segments, results):
+        if results and _unranked_rest(plans, segments, results):
             continue  # a segment that may hold the object is still to verify
         if settled is not None and results:
             t = time.perf_counter()
@@ -346,6 +356,53 @@ def polyhedral_candidates(
     return [r[0] for r in results], [r[1] for r in results]
 
 
+#: A segment's plan: (promise, segment index, vertex hypotheses, inlier distance).
+Plan = tuple[float, int, list[PoseHypothesis], float]
+
+
+class _LazyPlans:
+    """The segments' plans in the order of their promise (ties in segment order), each
+    computed when the order needs it: a full promise (1.0, the most a plan can have) is
+    next before any later segment's plan, whatever those promise."""
+
+    def __init__(self, n: int, plan: Callable[[int], Plan | None]) -> None:
+        self._plan = plan
+        self._todo = list(range(n))
+        self.computed: list[Plan] = []  # in segment order
+        self.verified: set[int] = set()
+
+    def _compute(self, to_full: bool) -> None:
+        while self._todo:
+            p = self._plan(self._todo.pop(0))
+            if p is not None:
+                self.computed.append(p)
+                if to_full and p[0] >= 1.0:
+                    return
+
+    def pending(self, complete: bool = False) -> list[Plan]:
+        """The plans not yet verified, in order; ``complete``: every segment planned (else
+        only as many as settle which one is next)."""
+        while True:
+            left = sorted(
+                (p for p in self.computed if p[1] not in self.verified), key=lambda p: -p[0]
+            )
+            if not self._todo or (not complete and left and left[0][0] >= 1.0):
+                return left
+            self._compute(to_full=not complete)
+
+    def next(self) -> Plan | None:
+        """The next plan to verify (marked verified), or None when none is left."""
+        left = self.pending()
+        if not left:
+            return None
+        self.verified.add(left[0][1])
+        return left[0]
+
+    def hyps_of(self, si: int) -> list[PoseHypothesis] | None:
+        """Segment ``si``'s hypotheses, when it was planned."""
+        return next((p[2] for p in self.computed if p[1] == si), None)
+
+
 #: A segment without vertex hypotheses (no pre-score: ordered last) with at least this
 #: fraction of the points of the best candidate's segment is verified before the candidates
 #: may settle (:func:`_unranked_rest`).
@@ -353,13 +410,12 @@ UNRANKED_FRACTION = 0.5
 
 
 def _unranked_rest(
-    plans: list[tuple[float, int, list[PoseHypothesis], float]],
-    k: int,
+    plans: _LazyPlans,
     segments: list[Segment],
     results: list[tuple[PoseHypothesis, int]],
 ) -> bool:
     """The best candidate so far comes from a segment without vertex hypotheses (its plane
-    pairs), and a segment after plan ``k`` has none either and at least
+    pairs), and a segment still to verify has none either and at least
     :data:`UNRANKED_FRACTION` of its points: nothing ranks the two, verify that one too.
 
     With the stereo pair's noise a cube's faces gave planes but no vertex, its segment went
@@ -367,13 +423,12 @@ def _unranked_rest(
     before it was verified (tuning seed 1192). A best candidate from vertex hypotheses
     settles as before (a clean cloud's clutter has no vertex either: verifying it cost the
     healthy cube and part 20-35 % more time on tuning seeds 1000-1049)."""
-    hyps_of = {si: hyps for _, si, hyps, _ in plans}
     best_si = results[0][1]
-    if hyps_of.get(best_si):
+    if plans.hyps_of(best_si):
         return False
     best = len(segments[best_si].points)
     return any(not hyps and len(segments[si].points) >= UNRANKED_FRACTION * best
-               for _, si, hyps, _ in plans[k + 1 :])  # fmt: skip
+               for _, si, hyps, _ in plans.pending(complete=True))  # fmt: skip
 
 
 #: Segment points the pre-score of a segment's vertex hypotheses uses (their order of

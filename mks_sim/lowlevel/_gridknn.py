@@ -158,6 +158,8 @@ def _compile() -> dict[str, Any]:
         "plane_band": k.plane_band,
         "footprint_inside": k.footprint_inside,
         "weak_components": k.weak_components,
+        "masked_components": k.masked_components,
+        "same_label_entries": k.same_label_entries,
     }
 
 
@@ -649,3 +651,63 @@ def weak_components(adjacency: Any) -> tuple[int, NDArray[Any]]:
         np.asarray(csr.indptr, dtype=np.int64), np.asarray(csr.indices, dtype=np.int64), n
     )
     return int(count), labels
+
+
+def masked_components(
+    adjacency: Any, keep: NDArray[np.bool_] | None = None, limit: float = math.inf
+) -> tuple[int, NDArray[np.intp]]:
+    """(count, (n,) labels, -1 off ``keep``) of the weakly connected components of the
+    nodes in ``keep`` (None: all) of a square CSR graph, over its entries of value <=
+    ``limit`` between two such nodes (explicit zeros are edges): :func:`weak_components` of
+    that subgraph, its labels in the order of each component's first node. One compiled
+    union-find when numba imports (no subgraph built: an object's 4,300-point SPG 0.9 ->
+    0.1 ms), else scipy's over the subgraph."""
+    from scipy import sparse
+
+    from mks_sim.errors import DataError
+
+    csr = sparse.csr_array(adjacency)
+    n = csr.shape[0]
+    if csr.shape[1] != n:
+        raise DataError(f"masked_components: expected a square graph, got shape {csr.shape}")
+    mask = np.ones(n, dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
+    if mask.shape != (n,):
+        raise DataError(f"masked_components: expected ({n},) keep, got {mask.shape}")
+    if available():
+        count, labels = _load()["masked_components"](
+            np.asarray(csr.indptr, dtype=np.int64), np.asarray(csr.indices, dtype=np.int64),
+            np.asarray(csr.data, dtype=np.float64), mask, float(limit),
+        )  # fmt: skip
+        return int(count), labels.astype(np.intp, copy=False)
+    from scipy.sparse import csgraph
+
+    idx = np.flatnonzero(mask)
+    sub = csr[idx][:, idx].tocoo()
+    link = sub.data <= limit
+    joined = sparse.csr_array(
+        (np.ones(int(link.sum())), (sub.row[link], sub.col[link])), shape=(len(idx), len(idx))
+    )
+    count, comp = csgraph.connected_components(joined, directed=True, connection="weak")
+    labels = np.full(n, -1, dtype=np.intp)
+    labels[idx] = comp
+    return int(count), labels
+
+
+def same_label_entries(adjacency: Any, labels: NDArray[Any]) -> Any:
+    """The CSR graph of the entries of a square CSR ``adjacency`` that join two nodes of one
+    label, each row's entries in their order (compiled when numba imports)."""
+    from scipy import sparse
+
+    csr = sparse.csr_array(adjacency)
+    lab = np.asarray(labels)
+    if available():
+        ptr, ind, dat = _load()["same_label_entries"](
+            np.asarray(csr.indptr, dtype=np.int64), csr.indices, csr.data, lab
+        )
+        return sparse.csr_array((dat, ind, ptr), shape=csr.shape)
+    row = np.repeat(np.arange(csr.shape[0]), np.diff(csr.indptr))
+    same = lab[row] == lab[csr.indices]
+    indptr = np.zeros(csr.shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(row[same], minlength=csr.shape[0]), out=indptr[1:])
+    return sparse.csr_array((csr.data[same], csr.indices[same], indptr), shape=csr.shape)
+

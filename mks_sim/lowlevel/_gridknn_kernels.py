@@ -1341,3 +1341,68 @@ def weak_components(indptr, indices, n):
         else:  # the root is the component's first node, labelled before i
             labels[i] = labels[r]
     return count, labels
+
+
+@nb.njit(cache=True)
+def masked_components(indptr, indices, data, keep, limit):
+    """(count, (n,) int64 labels, -1 off ``keep``) of the weakly connected components of
+    the CSR graph's nodes in ``keep`` over its entries of value <= ``limit`` between two
+    such nodes: :func:`weak_components` of that subgraph (the nodes in ``keep`` renumbered
+    in order), labels in the order of each component's first node."""
+    n = indptr.shape[0] - 1
+    parent = np.arange(n)
+    for i in range(n):
+        if not keep[i]:
+            continue
+        for e in range(indptr[i], indptr[i + 1]):
+            b = indices[e]
+            if not keep[b] or not data[e] <= limit:
+                continue
+            a = i
+            while parent[a] != a:  # (path halving)
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            while parent[b] != b:
+                parent[b] = parent[parent[b]]
+                b = parent[b]
+            if a != b:  # the larger root under the smaller
+                if a < b:
+                    parent[b] = a
+                else:
+                    parent[a] = b
+    labels = np.full(n, -1, np.int64)
+    count = 0
+    for i in range(n):
+        if not keep[i]:
+            continue
+        r = i
+        while parent[r] != r:
+            r = parent[r]
+        if r == i:
+            labels[i] = count
+            count += 1
+        else:  # the root is the component's first node, labelled before i
+            labels[i] = labels[r]
+    return count, labels
+
+
+@nb.njit(cache=True)
+def same_label_entries(indptr, indices, data, labels):
+    """The CSR arrays (indptr, indices, data) of the entries joining two nodes of one label,
+    each row's kept entries in their order."""
+    n = indptr.shape[0] - 1
+    out_ptr = np.zeros(n + 1, np.int64)
+    out_ind = np.empty(indices.shape[0], indices.dtype)
+    out_dat = np.empty(data.shape[0], data.dtype)
+    o = 0
+    for i in range(n):
+        li = labels[i]
+        for e in range(indptr[i], indptr[i + 1]):
+            j = indices[e]
+            if labels[j] == li:
+                out_ind[o] = j
+                out_dat[o] = data[e]
+                o += 1
+        out_ptr[i + 1] = o
+    return out_ptr, out_ind[:o].copy(), out_dat[:o].copy()
+

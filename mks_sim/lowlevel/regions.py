@@ -18,7 +18,7 @@ from scipy import sparse
 
 from mks_sim.errors import DataError
 from mks_sim.lowlevel import _gridknn
-from mks_sim.lowlevel._gridknn import column_mean, row_norms, weak_components
+from mks_sim.lowlevel._gridknn import column_mean, masked_components, row_norms
 from mks_sim.lowlevel.normals import (
     DEFAULT_CURVATURE_THRESHOLD,
     FixedGraph,
@@ -649,8 +649,7 @@ def _curved_regions(
     idx = np.flatnonzero(mask)
     if idx.size < max(min_points, 4):
         return []
-    adj = sparse.csr_array(graph.adjacency)[idx][:, idx]
-    _, comp = weak_components(adj)
+    comp = masked_components(graph.adjacency, mask)[1][idx]
     out: list[CurvedRegion] = []
     for c in np.argsort(-np.bincount(comp)):
         members = idx[comp == c]
