@@ -22,6 +22,7 @@ from scipy.ndimage import maximum_filter
 
 from mks_sim.errors import SpecError
 from mks_sim.sensing.faults import fault_fields
+from mks_sim.sim.piles import randomize_settled
 from mks_sim.sim.scenes import OutputBox, scene_file, scene_from_doc
 from mks_sim.sim.world import World
 
@@ -75,6 +76,7 @@ def bin_world(
     object: str | None = None,  # noqa: A002 - the CLI's --object
     scene: str | Path = BIN_SCENE,
     models: Sequence[str | Path] = (),
+    cache: bool = True,
 ) -> World:
     """The bin scene with ``count`` instances of database object ``object``, settled.
 
@@ -85,6 +87,9 @@ def bin_world(
         object: database object name; default the scene file's.
         scene: the bin scene file (one ``[[object]]`` entry).
         models: extra model folders.
+        cache: a pile settled before from the same model and seed is restored from the
+            pile cache (:mod:`mks_sim.sim.piles`; the same state to the bit), and a new one
+            saved there; False: always dropped and settled.
 
     Raises:
         SpecError: a bad count or a scene with more than one object entry.
@@ -93,7 +98,9 @@ def bin_world(
     path = scene_file(scene)
     spec = scene_from_doc(_bin_doc(path, count, object), path, models=models)
     world = World(spec)
-    if seed is not None:
+    if seed is not None and cache:
+        randomize_settled(world, seed)
+    elif seed is not None:
         world.randomize(np.random.default_rng(seed))
     else:
         world.settle()
