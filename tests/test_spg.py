@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -325,6 +327,29 @@ def test_grid_method_errors():
         SpatialProximityGraph(np.zeros((3, 2)), m=2, method="fast")
 
 
+def _flood_labels(n: int, edges: Any, nodes: Any) -> tuple[int, np.ndarray]:
+    """(count, (n,) labels, -1 off ``nodes``): a flood fill from each unlabelled node of
+    ``nodes`` in turn over the ``edges`` both ways (scipy's numbering)."""
+    nbrs: list[set[int]] = [set() for _ in range(n)]
+    for a, b in edges:
+        nbrs[a].add(b)
+        nbrs[b].add(a)
+    labels = np.full(n, -1)
+    count = 0
+    for s in nodes:
+        if labels[s] >= 0:
+            continue
+        labels[s] = count
+        stack = [s]
+        while stack:
+            for b in nbrs[stack.pop()]:
+                if labels[b] < 0:
+                    labels[b] = count
+                    stack.append(b)
+        count += 1
+    return count, labels
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_weak_components_against_flood_fill_and_scipy(seed):
     """The compiled union-find's count and labels: those of a flood fill over the graph's
@@ -340,23 +365,7 @@ def test_weak_components_against_flood_fill_and_scipy(seed):
     rows, cols = rng.integers(0, n, e), rng.integers(0, n, e)
     data = rng.random(e) * (rng.random(e) > 0.3)  # some explicit zeros
     graph = sparse.csr_array((data, (rows, cols)), shape=(n, n))
-    nbrs: list[set[int]] = [set() for _ in range(n)]
-    for a, b in zip(rows.tolist(), cols.tolist(), strict=True):
-        nbrs[a].add(b)
-        nbrs[b].add(a)
-    expect = np.full(n, -1)
-    count = 0
-    for s in range(n):
-        if expect[s] >= 0:
-            continue
-        expect[s] = count
-        stack = [s]
-        while stack:
-            for b in nbrs[stack.pop()]:
-                if expect[b] < 0:
-                    expect[b] = count
-                    stack.append(b)
-        count += 1
+    count, expect = _flood_labels(n, zip(rows.tolist(), cols.tolist(), strict=True), range(n))
     got_count, got = weak_components(graph)
     assert got_count == count
     np.testing.assert_array_equal(got, expect)
@@ -410,24 +419,12 @@ def test_masked_components_against_flood_fill(seed, compiled, monkeypatch):
         keep = rng.random(n) > 0.3
         limit = float(rng.choice([np.inf, 0.5, 0.0]))
         coo = graph.tocoo()
-        nbrs: list[set[int]] = [set() for _ in range(n)]
-        for a, b, v in zip(coo.row.tolist(), coo.col.tolist(), coo.data.tolist(), strict=True):
-            if keep[a] and keep[b] and v <= limit:
-                nbrs[a].add(b)
-                nbrs[b].add(a)
-        expect = np.full(n, -1)
-        count = 0
-        for s in np.flatnonzero(keep).tolist():
-            if expect[s] >= 0:
-                continue
-            expect[s] = count
-            stack = [s]
-            while stack:
-                for b in nbrs[stack.pop()]:
-                    if expect[b] < 0:
-                        expect[b] = count
-                        stack.append(b)
-            count += 1
+        edges = [
+            (a, b)
+            for a, b, v in zip(coo.row.tolist(), coo.col.tolist(), coo.data.tolist(), strict=True)
+            if keep[a] and keep[b] and v <= limit
+        ]
+        count, expect = _flood_labels(n, edges, np.flatnonzero(keep).tolist())
         got_count, got = gk.masked_components(graph, keep, limit)
         assert got_count == count
         np.testing.assert_array_equal(got, expect)

@@ -1308,6 +1308,44 @@ def induced_rows(indptr, indices, data, members, points, m):
 
 
 @nb.njit(cache=True)
+def _root(parent, a):
+    """The root of ``a`` in a union-find forest (path halving)."""
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]
+        a = parent[a]
+    return a
+
+
+@nb.njit(cache=True)
+def _join(parent, a, b):
+    """Join the trees of ``a`` and ``b``: the larger root under the smaller, so that every
+    root is the smallest node of its tree."""
+    a = _root(parent, a)
+    b = _root(parent, b)
+    if a < b:
+        parent[b] = a
+    elif b < a:
+        parent[a] = b
+
+
+@nb.njit(cache=True)
+def _first_node_labels(parent, keep, labels):
+    """Label the nodes in ``keep`` by their trees, in the order of each tree's first node
+    (its root, labelled before any other of its nodes); returns the count."""
+    count = 0
+    for i in range(parent.shape[0]):
+        if not keep[i]:
+            continue
+        r = _root(parent, i)
+        if r == i:
+            labels[i] = count
+            count += 1
+        else:
+            labels[i] = labels[r]
+    return count
+
+
+@nb.njit(cache=True)
 def weak_components(indptr, indices, n):
     """(count, (n,) int32 labels) of the weakly connected components of a CSR pattern:
     union-find over the entries, then labels in the order of each component's first node
@@ -1316,30 +1354,9 @@ def weak_components(indptr, indices, n):
     parent = np.arange(n)
     for i in range(n):
         for e in range(indptr[i], indptr[i + 1]):
-            a = i
-            while parent[a] != a:  # (path halving)
-                parent[a] = parent[parent[a]]
-                a = parent[a]
-            b = indices[e]
-            while parent[b] != b:
-                parent[b] = parent[parent[b]]
-                b = parent[b]
-            if a != b:  # the larger root under the smaller
-                if a < b:
-                    parent[b] = a
-                else:
-                    parent[a] = b
+            _join(parent, i, indices[e])
     labels = np.empty(n, np.int32)
-    count = 0
-    for i in range(n):
-        r = i
-        while parent[r] != r:
-            r = parent[r]
-        if r == i:
-            labels[i] = count
-            count += 1
-        else:  # the root is the component's first node, labelled before i
-            labels[i] = labels[r]
+    count = _first_node_labels(parent, np.ones(n, np.bool_), labels)
     return count, labels
 
 
@@ -1356,33 +1373,10 @@ def masked_components(indptr, indices, data, keep, limit):
             continue
         for e in range(indptr[i], indptr[i + 1]):
             b = indices[e]
-            if not keep[b] or not data[e] <= limit:
-                continue
-            a = i
-            while parent[a] != a:  # (path halving)
-                parent[a] = parent[parent[a]]
-                a = parent[a]
-            while parent[b] != b:
-                parent[b] = parent[parent[b]]
-                b = parent[b]
-            if a != b:  # the larger root under the smaller
-                if a < b:
-                    parent[b] = a
-                else:
-                    parent[a] = b
+            if keep[b] and data[e] <= limit:
+                _join(parent, i, b)
     labels = np.full(n, -1, np.int64)
-    count = 0
-    for i in range(n):
-        if not keep[i]:
-            continue
-        r = i
-        while parent[r] != r:
-            r = parent[r]
-        if r == i:
-            labels[i] = count
-            count += 1
-        else:  # the root is the component's first node, labelled before i
-            labels[i] = labels[r]
+    count = _first_node_labels(parent, keep, labels)
     return count, labels
 
 
