@@ -342,7 +342,10 @@ def polyhedral_candidates(
         t_ver += dt_v
         results.extend((h, si) for h, _ in scored)
         results.sort(key=lambda r: (-r[0].score, r[0].rmse))
-        if results and _unranked_rest(plans, segments, results):
+        t = time.perf_counter()
+        unranked = bool(results) and _unranked_rest(plans, segments, results)
+        t_hyp += time.perf_counter() - t  # (it may plan the segments left)
+        if unranked:
             continue  # a segment that may hold the object is still to verify
         if settled is not None and results:
             t = time.perf_counter()

@@ -1399,4 +1399,3 @@ def same_label_entries(indptr, indices, data, labels):
                 o += 1
         out_ptr[i + 1] = o
     return out_ptr, out_ind[:o].copy(), out_dat[:o].copy()
-
