@@ -101,3 +101,23 @@ def test_default_folder_is_the_user_cache(monkeypatch, tmp_path):
     assert piles.cache_dirs() == [tmp_path / "mks_sim" / "piles"]
     monkeypatch.setenv(piles.CACHE_ENV, f"{tmp_path / 'a'}:{tmp_path / 'b'}")
     assert piles.cache_dirs() == [tmp_path / "a", tmp_path / "b"]
+
+
+def test_the_suites_piles_are_current():
+    """``tests/assets/piles`` holds the pile of tuning bin 22 (six parts) for this bin scene,
+    MuJoCo and settling code; stale piles are never wrong (their keys no longer match) but
+    leave the suite to settle every tuning bin again (60-90 s more): after a change to the
+    bin scene or ``sim/world.py``, regenerate them (README: delete them, then
+    ``MKS_SIM_PILE_CACHE=tests/assets/piles make test``). Skipped under another MuJoCo than
+    the one they were written with (``MUJOCO_VERSION``)."""
+    from pathlib import Path
+
+    folder = Path(__file__).parent / "assets" / "piles"
+    written = (folder / "MUJOCO_VERSION").read_text().strip()
+    if mujoco.__version__ != written:
+        pytest.skip(f"piles written with MuJoCo {written}, this is {mujoco.__version__}")
+    key = piles.pile_key(bin_world(None), 22)
+    assert (folder / f"{key}.npz").is_file(), (
+        "tests/assets/piles is stale: delete its *.npz and run "
+        "MKS_SIM_PILE_CACHE=tests/assets/piles make test"
+    )
