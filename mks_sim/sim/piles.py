@@ -90,14 +90,18 @@ def _restore(world: World, path: Path) -> bool:
 def _save(world: World, key: str, folder: Path) -> None:
     state = np.empty(mujoco.mj_stateSize(world.model, _STATE))
     mujoco.mj_getState(world.model, world.data, state, _STATE)
+    tmp = folder / f".{key}.{os.getpid()}.npz"
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        tmp = folder / f".{key}.{os.getpid()}.npz"
         with open(tmp, "wb") as f:
             np.savez(f, state=state, rest_steps=np.int64(world.rest_steps))
         tmp.replace(folder / f"{key}.npz")  # atomic: a reader never sees half a file
     except OSError as exc:
         log.info("pile cache %s not written: %s", folder, exc)
+        try:
+            tmp.unlink(missing_ok=True)  # (a half-written file, e.g. the disk full)
+        except OSError:
+            pass
 
 
 def randomize_settled(world: World, seed: int) -> bool:
