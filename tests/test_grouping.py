@@ -467,6 +467,17 @@ def test_compiled_ring_moments_do_not_depend_on_the_threads() -> None:
         assert np.allclose(one[i], want, atol=1e-12)
 
 
+
+    # a ring that holds every point (the kernel writes one slot past the ring as it goes):
+    # a path of 6 points, 3 rings reach all of them from its middle
+    path = np.array([[float(i), 0.1 * i * i, 0.0] for i in range(6)])
+    ptr = np.array([0, 1, 3, 5, 7, 9, 10], dtype=np.int64)
+    idx = np.array([1, 0, 2, 1, 3, 2, 4, 3, 5, 4], dtype=np.int64)
+    c = path - path.mean(axis=0)
+    got = ring_moments(ptr, idx, c, 3, 1)
+    for i, members in ((2, range(6)), (0, range(4))):  # 3 hops from 2: all; from 0: 0..3
+        want = np.cov(c[list(members)].T, bias=True)[np.triu_indices(3)]
+        assert np.allclose(got[i], want, atol=1e-12)
 def test_warm_up_kernels_says_whether_the_compiled_paths_run() -> None:
     from mks_sim.lowlevel import _gridknn
     from mks_sim.lowlevel.regions import warm_up_kernels

@@ -210,7 +210,7 @@ def ring_moments(
     size = (n + nchunk - 1) // nchunk
     for ch in nb.prange(nchunk):
         stamp = np.full(n, -1, np.int64)
-        ring = np.empty(n, np.int64)
+        ring = np.empty(n + 1, np.int64)  # (+1: the slot past a full ring)
         for i in range(ch * size, min(n, (ch + 1) * size)):
             stamp[i] = i
             ring[0] = i
@@ -221,11 +221,14 @@ def ring_moments(
                 for k in range(lo, end):
                     p = ring[k]
                     for e in range(indptr[p], indptr[p + 1]):
+                        # without a branch (a visited q is written past the end and not
+                        # counted): 3 in 4 of a second ring's visits meet a point already
+                        # in it, unpredictably (the object points' 2-ring moments, 2
+                        # threads: 1.59 -> 1.27 ms)
                         q = indices[e]
-                        if stamp[q] != i:
-                            stamp[q] = i
-                            ring[hi] = q
-                            hi += 1
+                        ring[hi] = q
+                        hi += stamp[q] != i
+                        stamp[q] = i
                 lo = end
             _, _, _, a00, a01, a02, a11, a12, a22 = _scatter(c, ring, hi)
             out[i, 0] = a00 / hi
