@@ -465,9 +465,6 @@ def test_compiled_ring_moments_do_not_depend_on_the_threads() -> None:
         cov = np.cov(nb.T, bias=True)
         want = cov[np.triu_indices(3)]
         assert np.allclose(one[i], want, atol=1e-12)
-
-
-
     # a ring that holds every point (the kernel writes one slot past the ring as it goes):
     # a path of 6 points, 3 rings reach all of them from its middle
     path = np.array([[float(i), 0.1 * i * i, 0.0] for i in range(6)])
@@ -478,6 +475,8 @@ def test_compiled_ring_moments_do_not_depend_on_the_threads() -> None:
     for i, members in ((2, range(6)), (0, range(4))):  # 3 hops from 2: all; from 0: 0..3
         want = np.cov(c[list(members)].T, bias=True)[np.triu_indices(3)]
         assert np.allclose(got[i], want, atol=1e-12)
+
+
 def test_warm_up_kernels_says_whether_the_compiled_paths_run() -> None:
     from mks_sim.lowlevel import _gridknn
     from mks_sim.lowlevel.regions import warm_up_kernels
