@@ -548,6 +548,10 @@ def vertex_hypotheses(
             np.ascontiguousarray(c_gram), np.ascontiguousarray(cpts, dtype=np.float64),
             float(cos_max), float(vote_distance),
         )  # fmt: skip
+        if not rotinv:  # the corners' poses alone: ranked as arrays
+            return _ranked_corner_poses(
+                model, votes_c, mats_c, match_c, len(detected), scene_points, vote_distance, keep
+            )
         out.extend(zip(votes_c.tolist(), mats_c, match_c, strict=True))
     elif corners:
         det_tree = cKDTree(detected.points)
@@ -609,6 +613,39 @@ def vertex_hypotheses(
     return PoseHypothesis.many(
         mats[order], refs[order], ranked_votes, [corr.get(k, top[k][2]) for k in order]
     )
+
+
+def _ranked_corner_poses(
+    model: Any,
+    votes: NDArray[np.int64],
+    mats: FloatArray,
+    match: NDArray[np.int64],
+    n_detected: int,
+    scene_points: FloatArray,
+    vote_distance: float,
+    keep: int,
+) -> list[PoseHypothesis]:
+    """:func:`vertex_hypotheses`' ranking of the compiled corner poses alone, on their arrays
+    (``votes`` (H,), ``mats`` (H, 4, 4), ``match`` (H, V)): the same hypotheses in the same
+    order as ranking them as a list of tuples (the most voted ``keep``, a stable sort; ties by
+    the quick inlier fraction), without a Python tuple, sort key or stack per pose (a
+    segment's ~200 corner poses: ~0.3 ms less)."""
+    if len(votes) == 0:
+        return []
+    sub = scene_points[:: max(1, len(scene_points) // 100)]
+    top = np.argsort(-votes, kind="stable")[:keep]
+    votes, mats, match = votes[top], mats[top], match[top]
+    first, inverse = _distinct_placements(mats, model.symmetries(), vote_distance / 2)
+    quick = batch_inlier_fractions(model.surface, sub, mats[first], vote_distance / 2)[inverse]
+    order = np.lexsort((-quick, -votes))  # (stable: ties keep the votes' order)
+    ref = model.vertexes.mean(axis=0)
+    refs = np.einsum("kij,j->ki", mats[:, :3, :3], ref) + mats[:, :3, 3]  # (K, 3)
+    pairs, counts = _corner_pairs(match, n_detected)
+    starts = np.cumsum(counts) - counts
+    counts = counts[order]
+    take = np.repeat(starts[order] - (np.cumsum(counts) - counts), counts)
+    take += np.arange(len(take))
+    return PoseHypothesis.many(mats[order], refs[order], votes[order].tolist(), pairs[take], counts)
 
 
 def _distinct_placements(

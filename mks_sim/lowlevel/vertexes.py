@@ -111,15 +111,9 @@ def plane_vertexes(
     planes = [r.plane for r in regions] + list(extra_planes)
     n_regions = len(regions)
     sin_min = np.sin(np.radians(min_angle_deg))
-    cands: list[tuple[FloatArray, tuple[int, int, int]]] = []
-    triples = np.array(
-        [
-            t
-            for t in itertools.combinations(range(len(planes)), 3)
-            if sum(np.array(t) >= n_regions) <= 1
-        ],
-        dtype=np.intp,
-    ).reshape(-1, 3)
+    V = np.zeros((0, 3))
+    T = np.zeros((0, 3), dtype=np.intp)  # the candidates' (positions, face triples)
+    triples = _triples(len(planes), n_regions)
     if len(triples):
         normals = np.stack([p.normal for p in planes])
         offsets = np.array([p.offset for p in planes])
@@ -135,33 +129,34 @@ def plane_vertexes(
             pair_sin[:, k] = np.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
         ok = (pair_sin.min(axis=1) >= sin_min) & (np.abs(np.linalg.det(N)) >= sin_min * sin_min)
         V = np.linalg.solve(N[ok], offsets[triples[ok]][..., None])[..., 0]  # (C', 3)
-        cands = [(v, (int(t[0]), int(t[1]), int(t[2]))) for v, t in zip(V, triples[ok])]
+        T = triples[ok]
     # Support: per face, the nearest of its points to each candidate it takes part in
     # (compiled: every candidate's faces in one pass, the same distances to the bit).
-    worst = np.zeros(len(cands))
-    if cands and _gridknn.available():
+    worst = np.zeros(len(V))
+    if len(V) and _gridknn.available():
         ridx = [np.asarray(r.indices, dtype=np.int64) for r in regions]
         rstart = np.zeros(n_regions + 1, dtype=np.int64)
         np.cumsum([len(r) for r in ridx], out=rstart[1:])
         worst = _gridknn._load()["face_support"](
             np.ascontiguousarray(pts, dtype=np.float64),
             np.concatenate(ridx) if ridx else np.zeros(0, np.int64), rstart,
-            np.ascontiguousarray(np.stack([c[0] for c in cands]), dtype=np.float64),
-            np.array([c[1] for c in cands], dtype=np.int64), n_regions,
+            np.ascontiguousarray(V, dtype=np.float64), T.astype(np.int64), n_regions,
         )  # fmt: skip
     else:
         for t in range(n_regions):
-            mine = [i for i, (_, tr) in enumerate(cands) if t in tr]
-            if mine:
-                face = pts[regions[t].indices]
-                dist = _nearest_distances(face, np.stack([cands[i][0] for i in mine]))
+            mine = np.flatnonzero((T == t).any(axis=1))
+            if len(mine):
+                dist = _nearest_distances(pts[regions[t].indices], V[mine])
                 worst[mine] = np.maximum(worst[mine], dist)
-    found = [(v, tr, float(w)) for (v, tr), w in zip(cands, worst) if w <= tolerance]
+    # supported, least worst first (a stable sort), each kept unless within the merge
+    # distance of one kept before it (more than three faces meeting)
+    found = np.flatnonzero(worst <= tolerance)
+    found = found[np.argsort(worst[found], kind="stable")]
     merge = tolerance / 2 if merge_distance is None else merge_distance
-    kept: list[tuple[FloatArray, tuple[int, int, int], float]] = []
-    for v, triple, w_max in sorted(found, key=lambda f: f[2]):
-        if all(np.linalg.norm(v - k[0]) > merge for k in kept):
-            kept.append((v, triple, w_max))
+    kept: list[int] = []
+    for i in found.tolist():
+        if all(np.linalg.norm(V[i] - V[k]) > merge for k in kept):
+            kept.append(i)
     log.debug(
         "plane_vertexes: %d planes, %d candidates, %d kept", len(planes), len(found), len(kept)
     )
@@ -169,9 +164,19 @@ def plane_vertexes(
         return Vertexes(
             np.zeros((0, 3)), np.zeros((0, 3), np.intp), np.zeros((0, 3, 3)), np.zeros(0)
         )
+    faces = T[kept].astype(np.intp)
     return Vertexes(
-        points=np.stack([k[0] for k in kept]),
-        faces=np.array([k[1] for k in kept], dtype=np.intp),
-        normals=np.stack([np.stack([planes[t].normal for t in k[1]]) for k in kept]),
-        support=np.array([k[2] for k in kept]),
+        points=V[kept],
+        faces=faces,
+        normals=np.stack([p.normal for p in planes])[faces],
+        support=worst[kept].astype(np.float64),
     )
+
+
+def _triples(n_planes: int, n_regions: int) -> NDArray[np.intp]:
+    """(C, 3) the index triples of ``n_planes`` planes in combination order with at most
+    one extra plane (index >= ``n_regions``) each."""
+    if n_planes < 3:
+        return np.zeros((0, 3), dtype=np.intp)
+    t = np.array(list(itertools.combinations(range(n_planes), 3)), dtype=np.intp)
+    return t[(t >= n_regions).sum(axis=1) <= 1]
