@@ -1349,6 +1349,7 @@ def localize_polyhedral(
     # the coverage tests' questions of the object points, by the compiled grid (no tree)
     objects_tree = NearPoints(objects)
     checked: dict[int, tuple[PoseHypothesis, Consistency]] = {}
+    covers: Coverages = {}
 
     def check(h: PoseHypothesis) -> Consistency:
         """The consistency check of a candidate, computed once per candidate."""
@@ -1365,7 +1366,7 @@ def localize_polyhedral(
     def settled(found: list[PoseHypothesis]) -> bool:
         top = _contenders([found[i] for i in _top(found, 5)], check)
         checks = [check(h) for h in top]
-        return _settled(top, checks, rank(top, checks)[0], model, objects_tree, d)
+        return _settled(top, checks, rank(top, checks)[0], model, objects_tree, d, covers)
 
     candidates, _ = polyhedral_candidates(
         model, rep, segments, rng=rng, timing=timing, settled=settled
@@ -1394,7 +1395,7 @@ def localize_polyhedral(
     order, good = rank(contenders, checks)
     timing["verification"] += time.perf_counter() - t
     extra["inlier_distance_m"] = d
-    if _settled(contenders, checks, order, model, objects_tree, d):
+    if _settled(contenders, checks, order, model, objects_tree, d, covers):
         candidates = contenders
         t = time.perf_counter()
         # (the best only, to keep this path short: a tilted near-copy outranking the rested
@@ -1446,7 +1447,9 @@ def localize_polyhedral(
     else:
         timing["hypotheses"] += time.perf_counter() - t
     unexplained: list[Any] = []
-    if table is not None and _best_covers_little(candidates, checks, order, model, objects_tree, d):
+    if table is not None and _best_covers_little(
+        candidates, checks, order, model, objects_tree, d, covers
+    ):
         # support segments as the sensors separate objects: SPG components over 12 mm edges
         # (none that large: an object seen in pieces, e.g. an L-bracket standing on its leg
         # ends, keeps the merged segments), and the object segments over short edges that
@@ -1559,11 +1562,12 @@ def _settled(
     model: Any,
     objects_tree: cKDTree | NearPoints,
     d: float,
+    covers: Coverages | None = None,
 ) -> bool:
     """The best-ranked candidate is consistent and shows at least what one view does (not
     :func:`_best_covers_little`) and leaves at most :data:`HOP_UNEXPLAINED` of its
     explained count unexplained nearby: no later stage would replace it."""
-    if _best_covers_little(candidates, checks, order, model, objects_tree, d):
+    if _best_covers_little(candidates, checks, order, model, objects_tree, d, covers):
         return False
     best = checks[order[0]]
     return best.unexplained <= HOP_UNEXPLAINED * best.explained
@@ -1739,18 +1743,31 @@ def _best_covers_little(
     model: Any,
     objects_tree: cKDTree | NearPoints,
     d: float,
+    covers: Coverages | None = None,
 ) -> bool:
     """No consistent candidate, or the best shows less of the model's surface than one view
     does (:data:`VISIBLE_FRACTION` of its samples with an object point within ``d``, from
     ``objects_tree``, the object points' k-d tree; a fraction of the model's fixed sampling,
-    independent of the scan density): the object may be another, partly hidden segment."""
+    independent of the scan density): the object may be another, partly hidden segment.
+    ``covers``: the coverages computed so far, by candidate (one localization asks of the
+    same best again once its candidates settled)."""
     from mks_sim.localization.verify import surface_coverage
 
     if not order or not checks[order[0]].ok or objects_tree.n == 0:
         return True
-    T = np.asarray(candidates[order[0]].matrix, dtype=np.float64)
-    cover = surface_coverage(model.surface_points(), T[None], objects_tree, d)
-    return bool(cover[0] < VISIBLE_FRACTION)
+    best = candidates[order[0]]
+    hit = None if covers is None else covers.get(id(best))
+    if hit is None or hit[0] is not best:
+        T = np.asarray(best.matrix, dtype=np.float64)
+        hit = (best, float(surface_coverage(model.surface_points(), T[None], objects_tree, d)[0]))
+        if covers is not None:
+            covers[id(best)] = hit
+    return hit[1] < VISIBLE_FRACTION
+
+
+#: The coverages :func:`_best_covers_little` computed, by ``id`` of the candidate (kept with
+#: it: an id is reused only after its object is gone).
+Coverages = dict[int, tuple[PoseHypothesis, float]]
 
 
 def _unexplained_segments(
