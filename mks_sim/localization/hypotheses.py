@@ -596,33 +596,44 @@ def vertex_hypotheses(
     if not out:
         return []
     # Rank by votes; break ties among the first ``keep`` by a quick inlier fraction.
-    sub = scene_points[:: max(1, len(scene_points) // 100)]
     top = sorted(out, key=lambda o: -o[0])[:keep]
     rows = [k for k, o in enumerate(top) if o[2].ndim == 1]
+    votes = np.array([o[0] for o in top], dtype=np.int64)
     mats = np.stack([o[1] for o in top])
-    # one quick score per distinct placement (poses equal up to a model symmetry share it)
-    first, inverse = _distinct_placements(mats, model.symmetries(), vote_distance / 2)
-    quick = batch_inlier_fractions(model.surface, sub, mats[first], vote_distance / 2)[inverse]
-    order = sorted(range(len(top)), key=lambda k: (-top[k][0], -quick[k]))
-    ref = model.vertexes.mean(axis=0)
-    refs = np.einsum("kij,j->ki", mats[:, :3, :3], ref) + mats[:, :3, 3]  # (K, 3)
-    ranked_votes = [top[k][0] for k in order]
-    if len(rows) == len(top):
-        # every pose a corner's: its pairs in the hypotheses' order, in one array (the
-        # hypotheses' correspondences are views of it)
-        pairs, counts = _corner_pairs(np.stack([o[2] for o in top]), len(detected))
-        starts = np.cumsum(counts) - counts
-        counts = counts[order]
-        take = np.repeat(starts[order] - (np.cumsum(counts) - counts), counts)
-        take += np.arange(len(take))
-        return PoseHypothesis.many(mats[order], refs[order], ranked_votes, pairs[take], counts)
+    if len(rows) == len(top):  # every pose a corner's
+        match = np.stack([o[2] for o in top])
+        return _ranked_corner_poses(
+            model, votes, mats, match, len(detected), scene_points, vote_distance, keep
+        )
+    order, refs = _quick_order(model, votes, mats, scene_points, vote_distance)
     corr: dict[int, NDArray[np.int64]] = {}
     if rows:
         found = _corner_correspondences(np.stack([top[k][2] for k in rows]), len(detected))
         corr = dict(zip(rows, found, strict=True))
     return PoseHypothesis.many(
-        mats[order], refs[order], ranked_votes, [corr.get(k, top[k][2]) for k in order]
-    )
+        mats[order], refs[order], votes[order].tolist(),
+        [corr.get(k, top[k][2]) for k in order.tolist()],
+    )  # fmt: skip
+
+
+def _quick_order(
+    model: Any,
+    votes: NDArray[np.int64],
+    mats: FloatArray,
+    scene_points: FloatArray,
+    vote_distance: float,
+) -> tuple[NDArray[np.intp], FloatArray]:
+    """The order of K poses sorted by ``votes`` (most first) and, among equal votes, by a
+    quick inlier fraction on about 100 of the scene points (a stable sort: full ties keep
+    their order), and the (K, 3) model reference point under each pose."""
+    sub = scene_points[:: max(1, len(scene_points) // 100)]
+    # one quick score per distinct placement (poses equal up to a model symmetry share it)
+    first, inverse = _distinct_placements(mats, model.symmetries(), vote_distance / 2)
+    quick = batch_inlier_fractions(model.surface, sub, mats[first], vote_distance / 2)[inverse]
+    order = np.lexsort((-quick, -votes))
+    ref = model.vertexes.mean(axis=0)
+    refs = np.einsum("kij,j->ki", mats[:, :3, :3], ref) + mats[:, :3, 3]  # (K, 3)
+    return order, refs
 
 
 def _ranked_corner_poses(
@@ -635,21 +646,17 @@ def _ranked_corner_poses(
     vote_distance: float,
     keep: int,
 ) -> list[PoseHypothesis]:
-    """:func:`vertex_hypotheses`' ranking of the compiled corner poses alone, on their arrays
-    (``votes`` (H,), ``mats`` (H, 4, 4), ``match`` (H, V)): the same hypotheses in the same
-    order as ranking them as a list of tuples (the most voted ``keep``, a stable sort; ties by
-    the quick inlier fraction), without a Python tuple, sort key or stack per pose (the
-    cube's localization, three segments: 2.9 -> 2.3 ms)."""
+    """:func:`vertex_hypotheses`' ranking of corner poses on their arrays (``votes`` (H,),
+    ``mats`` (H, 4, 4), ``match`` (H, V): the detected vertex each model corner landed on):
+    the most voted ``keep`` (a stable sort) in :func:`_quick_order`, their corner pairs in
+    one array (the hypotheses' correspondences are views of it). The compiled matcher's
+    poses come here without a Python tuple, sort key or stack per pose (the cube's
+    localization, three segments: 2.9 -> 2.3 ms)."""
     if len(votes) == 0:
         return []
-    sub = scene_points[:: max(1, len(scene_points) // 100)]
     top = np.argsort(-votes, kind="stable")[:keep]
     votes, mats, match = votes[top], mats[top], match[top]
-    first, inverse = _distinct_placements(mats, model.symmetries(), vote_distance / 2)
-    quick = batch_inlier_fractions(model.surface, sub, mats[first], vote_distance / 2)[inverse]
-    order = np.lexsort((-quick, -votes))  # (stable: ties keep the votes' order)
-    ref = model.vertexes.mean(axis=0)
-    refs = np.einsum("kij,j->ki", mats[:, :3, :3], ref) + mats[:, :3, 3]  # (K, 3)
+    order, refs = _quick_order(model, votes, mats, scene_points, vote_distance)
     pairs, counts = _corner_pairs(match, n_detected)
     starts = np.cumsum(counts) - counts
     counts = counts[order]
