@@ -318,8 +318,9 @@ class Representation:
         pts = self.raw_objects
         if len(pts) < 3:
             return np.zeros(len(pts))
-        from mks_sim.lowlevel import _gridknn
         from scipy import sparse
+
+        from mks_sim.lowlevel import _gridknn
 
         grid = len(pts) >= _GRID_MIN_POINTS and _gridknn.available()
         spg = SpatialProximityGraph(pts, m=self.config.m, method="grid" if grid else "tree")
