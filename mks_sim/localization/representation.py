@@ -205,7 +205,8 @@ class Representation:
         points: the points the representation is built on (``raw`` voxel-averaged when
             :attr:`voxel` > 0).
         tree, spacing, noise, voxel, table, table_threshold, object_indices, objects,
-        objects_tree, graph, spg_adjacency, labels, normals, segmentation.
+        objects_tree, graph, spg_adjacency, labels, normals, segmentation; at the sensor's
+        own resolution: raw_rows, raw_objects, raw_curvature (and ``raw_of``).
     """
 
     def __init__(
@@ -251,10 +252,11 @@ class Representation:
         ``"auto"``: noise above 0.2 x the spacing defeats PCA normals over one SPG ring, so
         the cloud is averaged at max(spacing, 3 sigma); a cloud over ``max_points`` is
         averaged on an edge of 1.1 x spacing x sqrt(N / max_points), unless that edge is
-        over ``max_voxel_spacings`` spacings (the workstation's 1.5: the range finder's
-        23.7k-point scan is averaged at 1.34 spacings; the stereo pair's 58k points, already
-        thinned on a 2 mm grid, would be at 2.1 and are left as they are: averaged, the
-        stereo cube was found in 166 of 170 tuning seeds against 169).
+        over ``max_voxel_spacings`` spacings (the workstation's 8000 and 2.5: the range
+        finder's 23.7k-point scan is averaged at 1.9 spacings, a 4.1 mm grid; the stereo
+        pair's 58k points, already thinned on a 2 mm grid, would be at 3.0 and are left as
+        they are: averaged at 2.1 spacings, the stereo cube was found in 166 of 170 tuning
+        seeds against 169).
         """
         v = self.config.voxel
         if v is None:
