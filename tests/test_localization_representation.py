@@ -70,7 +70,9 @@ def test_batch_inlier_fractions_equal_score_pose() -> None:
     for compiled in (True, False):
         batch = batch_inlier_fractions(surface, scene, np.stack(mats), 0.002, compiled=compiled)
         np.testing.assert_allclose(batch, on_grid, atol=1e-12)
-    assert on_grid[0] > 0.99 and max(on_grid[1:]) < on_grid[0]
+    # (the grid's sample is the one nearest its cell's centre: the true pose may lose a
+    # point or two of the 400 to it)
+    assert on_grid[0] >= 0.99 and max(on_grid[1:]) < on_grid[0]
 
 
 def test_compiled_score_pose_equals_numpys() -> None:
@@ -347,6 +349,52 @@ def test_a_cloud_over_the_point_budget_is_voxel_averaged() -> None:
     for cap, averaged in ((0.9 * ratio, False), (1.1 * ratio, True)):
         cfg = RepresentationConfig(table_z_m=TABLE_Z, max_points=6000, max_voxel_spacings=cap)
         assert (Representation(pts, cfg).voxel > 0) is averaged, cap
+
+
+def test_raw_points_of_an_averaged_representation_by_brute_force() -> None:
+    """``raw_rows``: each raw point's row of the averaged points is the one whose voxel cell
+    it falls in, and each averaged point is the mean of its raw points (brute force over the
+    cells); ``raw_of`` a component gives exactly the raw points of its rows;
+    ``raw_curvature`` is the two-ring variation of the raw object points over their own
+    SPG (a tree's, brute force here) without edges between objects."""
+    pts = _scene()
+    rep = Representation(pts, RepresentationConfig(table_z_m=TABLE_Z, max_points=6000))
+    assert rep.voxel > 0
+    rows = rep.raw_rows
+    cells = np.floor(rep.raw / rep.voxel).astype(np.int64)
+    # one cell per row, and one row per cell
+    keys = {tuple(c): r for c, r in zip(cells, rows, strict=True)}
+    assert len(keys) == len(rep.points)
+    for c, r in zip(cells, rows, strict=True):
+        assert keys[tuple(c)] == r
+    for d in range(3):
+        mean = np.bincount(rows, weights=rep.raw[:, d]) / np.bincount(rows)
+        np.testing.assert_allclose(mean, rep.points[:, d], atol=1e-12)
+    comp = rep.components()[0]
+    got = rep.raw_of(comp)
+    want = rep.raw[np.isin(rows, rep.object_indices[comp])]
+    np.testing.assert_array_equal(got, want)
+    assert len(got) > len(comp)
+    # the raw objects' curvature: two rings of their own SPG (by the tree here), edges
+    # between objects (components over edges <= the gap) dropped
+    from scipy import sparse
+    from scipy.sparse import csgraph
+
+    from mks_sim.lowlevel.normals import FixedGraph, estimate_normals
+    from mks_sim.lowlevel.spg import SpatialProximityGraph
+
+    raw = rep.raw_objects
+    assert len(raw) == int(np.isin(rows, rep.object_indices).sum())
+    adj = sparse.csr_array(SpatialProximityGraph(raw, m=12, method="tree").adjacency)
+    short = adj.copy()
+    short.data[short.data > rep.gap] = 0.0
+    short.eliminate_zeros()
+    _, lab = csgraph.connected_components(short, directed=False)
+    coo = adj.tocoo()
+    same = lab[coo.row] == lab[coo.col]
+    graph = sparse.csr_array((coo.data[same], (coo.row[same], coo.col[same])), shape=adj.shape)
+    want_c = estimate_normals(raw, FixedGraph(graph), curvature_rings=2).curvature
+    np.testing.assert_allclose(rep.raw_curvature, want_c, rtol=1e-9, atol=1e-12)
 
 
 def test_spacing_and_noise_match_a_brute_force_on_a_noisy_plane() -> None:

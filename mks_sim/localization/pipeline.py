@@ -1404,11 +1404,12 @@ def localize_polyhedral(
         # the points near the pose, as the polish does, so a best that rests needs no polish
         # (one ICP and one check less; the same successes and median errors on tuning seeds
         # 1000-1129, the healthy cube's poses identical)
-        rested = _rest_best(order[:1], candidates, checks, model, objects, table, d, check)
+        fine = rep.raw_of(np.flatnonzero(keep))  # the kept objects at the sensor's resolution
+        rested = _rest_best(order[:1], candidates, checks, model, fine, table, d, check)
         if not rested:
             _polish(order[0], candidates, checks, model, objects, d, rng, check)
             order, _ = rank(candidates, checks)
-            rested = _rest_best(order[:1], candidates, checks, model, objects, table, d, check)
+            rested = _rest_best(order[:1], candidates, checks, model, fine, table, d, check)
         extra["rested"] = rested
         order, good = rank(candidates, checks)
         timing["verification"] += time.perf_counter() - t
@@ -1509,7 +1510,8 @@ def localize_polyhedral(
         extra["hops"] = len(hops)
         order, good = rank(candidates, checks)
     if order:
-        extra["rested"] = _rest_best(order, candidates, checks, model, objects, table, d, check)
+        fine = rep.raw_of(np.flatnonzero(keep))
+        extra["rested"] = _rest_best(order, candidates, checks, model, fine, table, d, check)
         order, good = rank(candidates, checks)
     timing["verification"] += time.perf_counter() - t
     extra["checks"] = [checks[i].as_dict() for i in order[:5]]

@@ -205,7 +205,8 @@ class Representation:
         points: the points the representation is built on (``raw`` voxel-averaged when
             :attr:`voxel` > 0).
         tree, spacing, noise, voxel, table, table_threshold, object_indices, objects,
-        objects_tree, graph, spg_adjacency, labels, normals, segmentation.
+        objects_tree, graph, spg_adjacency, labels, normals, segmentation; at the sensor's
+        own resolution: raw_rows, raw_objects, raw_curvature (and ``raw_of``).
     """
 
     def __init__(
@@ -251,10 +252,11 @@ class Representation:
         ``"auto"``: noise above 0.2 x the spacing defeats PCA normals over one SPG ring, so
         the cloud is averaged at max(spacing, 3 sigma); a cloud over ``max_points`` is
         averaged on an edge of 1.1 x spacing x sqrt(N / max_points), unless that edge is
-        over ``max_voxel_spacings`` spacings (the workstation's 1.5: the range finder's
-        23.7k-point scan is averaged at 1.34 spacings; the stereo pair's 58k points, already
-        thinned on a 2 mm grid, would be at 2.1 and are left as they are: averaged, the
-        stereo cube was found in 166 of 170 tuning seeds against 169).
+        over ``max_voxel_spacings`` spacings (the workstation's 8000 and 2.5: the range
+        finder's 23.7k-point scan is averaged at 1.9 spacings, a 4.1 mm grid; the stereo
+        pair's 58k points, already thinned on a 2 mm grid, would be at 3.0 and are left as
+        they are: averaged at 2.1 spacings, the stereo cube was found in 166 of 170 tuning
+        seeds against 169).
         """
         v = self.config.voxel
         if v is None:
@@ -278,6 +280,63 @@ class Representation:
         if self.voxel > 0:
             return voxel_average(self.raw, self.voxel)
         return self.raw
+
+    @cached_property
+    def raw_rows(self) -> IntArray:
+        """(N_raw,) the row of :attr:`points` each raw point was averaged into (the
+        identity when not averaged): :func:`voxel_average_cells`' cells are
+        :func:`voxel_average`'s, in the same lexicographic order."""
+        if self.voxel == 0:
+            return np.arange(len(self.raw))
+        return voxel_average_cells(self.raw, self.voxel)[1]
+
+    def raw_of(self, indices: IntArray) -> FloatArray:
+        """The raw points averaged into the object points ``indices`` (into :attr:`objects`):
+        a region at the sensor's own resolution, whatever the budget averaged it to."""
+        if self.voxel == 0:
+            return self.objects[indices]
+        rows = np.zeros(len(self.points), dtype=bool)
+        rows[self.object_indices[indices]] = True
+        return self.raw[rows[self.raw_rows]]
+
+    @cached_property
+    def raw_objects(self) -> FloatArray:
+        """(K_raw, 3) the raw points averaged into :attr:`objects` (all of them when not
+        averaged)."""
+        return self.raw_of(np.arange(len(self.objects)))
+
+    @cached_property
+    def raw_curvature(self) -> FloatArray:
+        """(K_raw,) surface variation of :attr:`raw_objects` over two rings of their own SPG
+        (edges up to :attr:`gap` and never between objects, as :attr:`normals`' graph): the
+        curvature at the sensor's resolution, which a coarse averaging budget would blur
+        (two rings of coarse cells reach a face's edges from far inside it)."""
+        if self.voxel == 0:
+            return np.asarray(self.normals.curvature)
+        from mks_sim.lowlevel._gridknn import masked_components, same_label_entries
+        from mks_sim.lowlevel.normals import FixedGraph, estimate_normals
+        from mks_sim.lowlevel.spg import SpatialProximityGraph
+
+        pts = self.raw_objects
+        if len(pts) < 3:
+            return np.zeros(len(pts))
+        from scipy import sparse
+
+        from mks_sim.lowlevel import _gridknn
+
+        grid = len(pts) >= _GRID_MIN_POINTS and _gridknn.available()
+        spg = SpatialProximityGraph(pts, m=self.config.m, method="grid" if grid else "tree")
+        adj = sparse.csr_array(spg.adjacency)
+        nnz = int(adj.indptr[-1])
+        adj = sparse.csr_array((adj.data[:nnz], adj.indices[:nnz], adj.indptr), shape=adj.shape)
+        labels = masked_components(adj, limit=self.gap)[1]
+        graph = FixedGraph(same_label_entries(adj, labels))
+        return np.asarray(estimate_normals(pts, graph, curvature_rings=2).curvature)
+
+    @property
+    def raw_spacing(self) -> float:
+        """Median nearest-neighbour distance of the raw points."""
+        return self._raw_stats[0]
 
     @cached_property
     def tree(self) -> cKDTree:

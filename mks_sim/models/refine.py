@@ -133,7 +133,7 @@ LOOKUP_MAX_CELLS = 3_000_000
 #: The lookup's grid reaches this fraction of the model's size beyond its bounding box
 #: (ICP's gates: 4 inlier distances, at most a tenth of the size; farther queries go to
 #: the tree).
-LOOKUP_MARGIN = 0.15
+LOOKUP_MARGIN = 0.2
 
 
 @dataclass(frozen=True, eq=False)

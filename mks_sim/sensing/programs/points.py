@@ -379,10 +379,10 @@ def surface_curvature(inputs: Mapping[str, Any], params: Mapping[str, Any]) -> n
     kw = {"threshold": params["curvature_threshold"]} if "curvature_threshold" in params else {}
     if params.get("drop_table", True):
         rep = _representation(inputs, params, "surface_curvature")
-        pts = rep.objects
+        pts = rep.raw_objects  # at the sensor's resolution, whatever the budget averaged
         if len(pts) < 4:
             raise SensorFailure("surface_curvature", f"expected >= 4 object points, got {len(pts)}")
-        curvature = rep.normals.curvature
+        curvature = rep.raw_curvature
     else:
         pts = _stream_points(inputs, "surface_curvature")
         if len(pts) < 4:
@@ -465,7 +465,9 @@ def control_point_detector(inputs: Mapping[str, Any], params: Mapping[str, Any])
     wall_sin = np.sin(np.deg2rad(float(params.get("up_tolerance_deg", 20.0))))
     rows: list[np.ndarray] = []
     comps = rep.components(int(params.get("min_object_points", 30)))
-    spacing = max(rep.segmentation.spacing, 1e-6) if comps else rep.spacing
+    # the outlines at the sensor's own resolution: an averaging budget's coarse cells would
+    # round the corners off by about a cell
+    spacing = max(rep.raw_spacing, 1e-6)
     for comp in comps:
         verts, planes = object_vertexes(rep, comp, params)
         n_regions = len(planes)
@@ -481,7 +483,7 @@ def control_point_detector(inputs: Mapping[str, Any], params: Mapping[str, Any])
             for region in planes:
                 if abs(region.normal[2]) < up_cos:
                     continue
-                pts = rep.objects[region.indices]
+                pts = rep.raw_of(region.indices)
                 for corner in outline_corners(pts, region.normal, spacing):
                     if all(np.linalg.norm(corner - f) > merge for f in found):
                         found.append(corner)
