@@ -311,19 +311,19 @@ class Representation:
         (edges up to :attr:`gap` and never between objects, as :attr:`normals`' graph): the
         curvature at the sensor's resolution, which a coarse averaging budget would blur
         (two rings of coarse cells reach a face's edges from far inside it)."""
-        if self.voxel == 0:
-            return np.asarray(self.normals.curvature)
+        from scipy import sparse
+
+        from mks_sim.lowlevel import _gridknn
         from mks_sim.lowlevel._gridknn import masked_components, same_label_entries
         from mks_sim.lowlevel.normals import FixedGraph, estimate_normals
         from mks_sim.lowlevel.spg import SpatialProximityGraph
 
+        if self.voxel == 0:
+            return np.asarray(self.normals.curvature)
         pts = self.raw_objects
         if len(pts) < 3:
             return np.zeros(len(pts))
-        from scipy import sparse
-
-        from mks_sim.lowlevel import _gridknn
-
+        # the SPG as :attr:`spg_adjacency` and :attr:`_adjacency` build it, on the raw points
         grid = len(pts) >= _GRID_MIN_POINTS and _gridknn.available()
         spg = SpatialProximityGraph(pts, m=self.config.m, method="grid" if grid else "tree")
         adj = sparse.csr_array(spg.adjacency)

@@ -132,7 +132,9 @@ class ModelSurface:
 LOOKUP_MAX_CELLS = 3_000_000
 #: The lookup's grid reaches this fraction of the model's size beyond its bounding box
 #: (ICP's gates: 4 inlier distances, at most a tenth of the size; farther queries go to
-#: the tree).
+#: the tree, and an ICP whose gate reaches past the grid runs its steps in Python). 0.2:
+#: the workstation's 4.1 mm voxels give the cube a gate of ~16 mm, inside the 17 mm its
+#: grid reaches (0.15: 13 mm, and the cube's verification took 8.2 ms instead of 4.9).
 LOOKUP_MARGIN = 0.2
 
 
